@@ -1,0 +1,24 @@
+# calib: calibration of a strapdown INS (seed 000) and gyro-drift estimation (seed 001).
+# Thin top level: configuration, validation, and the per-stage rule files.
+from snakemake.utils import min_version, validate
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+validate(config, "workflow/schemas/config.schema.yaml")
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/data.smk"
+include: "workflow/rules/calibration.smk"
+include: "workflow/rules/navigation.smk"
+include: "workflow/rules/track.smk"
+
+
+rule all:
+    input:
+        all_targets(),
+    default_target: True

@@ -1,0 +1,67 @@
+#!/usr/bin/env python3
+"""Set up calib in its own virtual environment and run the study or the tests.
+
+    python3 run.py study   # create .venv, install, run the full default study (config/config.yaml)
+    python3 run.py test    # create/reuse .venv, install, run pytest, snakemake --lint and the .test workflow
+
+Needs only Python >= 3.11 and pip. Extra arguments after the verb go to snakemake (study) or pytest (test).
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import venv
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+VENV = Path(os.environ.get("CALIB_VENV", ROOT / ".venv"))
+BIN = VENV / ("Scripts" if os.name == "nt" else "bin")
+PY = BIN / "python"
+
+
+def sh(*cmd, **kw):
+    print("+", " ".join(map(str, cmd)), flush=True)
+    r = subprocess.run([str(c) for c in cmd], cwd=kw.pop("cwd", ROOT), **kw)
+    if r.returncode != 0:
+        sys.exit(r.returncode)
+
+
+def setup():
+    if sys.version_info < (3, 11):
+        sys.exit(f"calib needs Python >= 3.11, this is {sys.version.split()[0]}")
+    if not PY.exists():
+        print(f"creating virtual environment {VENV}", flush=True)
+        venv.EnvBuilder(with_pip=True).create(VENV)
+    stamp = VENV / ".calib-installed"
+    spec = (ROOT / "pyproject.toml").read_bytes()
+    if not stamp.exists() or stamp.read_bytes() != spec:
+        sh(PY, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
+        sh(PY, "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[test]")
+        stamp.write_bytes(spec)
+    env = dict(os.environ)
+    env["PATH"] = f"{BIN}{os.pathsep}{env.get('PATH', '')}"
+    return env
+
+
+def main(argv):
+    verb = argv[0] if argv else "help"
+    rest = argv[1:]
+    if verb == "study":
+        env = setup()
+        sh(BIN / "snakemake", "--profile", "workflow/profiles/default", *rest, env=env)
+    elif verb == "test":
+        env = setup()
+        sh(PY, "-m", "pytest", "-q", *rest, env=env)
+        sh(BIN / "snakemake", "--lint", "--configfile", ".test/config.yaml", env=env)
+        sh(BIN / "snakemake", "--profile", "workflow/profiles/default", "--configfile", ".test/config.yaml",
+           env=env)
+    elif verb == "setup":
+        setup()
+    else:
+        print(__doc__)
+        sys.exit(0 if verb in ("help", "-h", "--help") else 2)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
