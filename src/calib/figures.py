@@ -42,6 +42,9 @@ def save(fig, path) -> Path:
     suffix = path.suffix.lower()
     fd, tmp = tempfile.mkstemp(prefix="." + path.stem + ".", suffix=suffix, dir=path.parent)
     os.close(fd)
+    from .ncio import _umask
+
+    os.chmod(tmp, 0o666 & ~_umask())
     try:
         with plt.rc_context(STYLE):
             fig.savefig(tmp, format=suffix[1:], metadata=_META.get(suffix))

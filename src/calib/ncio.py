@@ -21,9 +21,17 @@ import xarray as xr
 ENGINE = "netcdf4"
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _tmp_name(path: Path) -> Path:
+    """A unique temporary file beside ``path``, with the permissions a plain ``open`` would give."""
     fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~_umask())
     return Path(tmp)
 
 

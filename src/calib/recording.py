@@ -348,10 +348,12 @@ class LongRecordingWriter:
 
     def __init__(self, path, n_samples, sample_rate_hz, *, latitude_deg, accel_units, gyro_units,
                  accel_kind="increment", gyro_kind="increment", dtype="f8", height_m=0.0, t0_s=0.0,
-                 source="synthetic", sensor="", extra_attrs=None, chunk_samples=262144):
+                 source="synthetic", sensor="", extra_attrs=None, chunk_samples=262144, temperature=False):
         self._atomic = AtomicNetCDF(path)
         self.n = int(n_samples)
         self.pos = 0
+        self.vt = None  # optional temperature(time) [degC] channel (``temperature=True``)
+        self._temperature = bool(temperature)
         self._args = dict(fs=float(sample_rate_hz), lat=float(latitude_deg), au=accel_units, gu=gyro_units,
                           ak=accel_kind, gk=gyro_kind, dtype=dtype, h=float(height_m), t0=float(t0_s),
                           source=source, sensor=sensor, extra=extra_attrs or {}, chunk=int(chunk_samples))
@@ -369,18 +371,25 @@ class LongRecordingWriter:
         self.vg = nc.createVariable("gyro", a["dtype"], ("time", "axis"), chunksizes=chunks)
         self.va.setncatts({"sample_kind": a["ak"], "units": a["au"], "long_name": "accelerometer triad output"})
         self.vg.setncatts({"sample_kind": a["gk"], "units": a["gu"], "long_name": "gyroscope triad output"})
+        if self._temperature:
+            self.vt = nc.createVariable("temperature", "f4", ("time",), chunksizes=(chunks[0],))
+            self.vt.setncatts({"units": "degC", "long_name": "unit temperature"})
         attrs = {"conventions": CONVENTIONS, "latitude_deg": a["lat"], "height_m": a["h"], "sample_rate_hz": a["fs"],
                  "t0_s": a["t0"], "source": a["source"], "sensor": a["sensor"]}
         attrs.update(a["extra"])
         nc.setncatts(attrs)
         return self
 
-    def append(self, accel, gyro):
+    def append(self, accel, gyro, temperature=None):
         k = len(accel)
         if self.pos + k > self.n:
             raise ValueError(f"writer overflow: {self.pos + k} > {self.n} samples")
+        if (temperature is None) != (self.vt is None):
+            raise ValueError("temperature samples must be given exactly when the writer was opened with temperature=True")
         self.va[self.pos:self.pos + k] = accel
         self.vg[self.pos:self.pos + k] = gyro
+        if self.vt is not None:
+            self.vt[self.pos:self.pos + k] = temperature
         self.pos += k
 
     def __exit__(self, exc_type, exc, tb):

@@ -1,0 +1,261 @@
+"""Overlapping Allan deviation, its confidence intervals, a noise-model fit, and the sigma of a segment mean.
+
+Why this module exists
+----------------------
+Every chi-square and every standard error of a calibration needs the standard deviation of a *segment
+mean* (one static position, one whole-revolution rotation window). The scatter of the samples inside
+one 60 s window only measures the fast (white) noise: the mean of such a window also wanders with
+bias instability and rate random walk, which the within-window scatter cannot see. The Allan deviation
+at tau = segment duration is the conventional measure of how much consecutive T-long means differ:
+for white rate noise it equals the standard deviation of a T-long mean exactly, and for the slower
+noises it is the usual proxy (IEEE Std 952 / 1554 practice). So:
+
+    sigma(mean of a T-long segment) = ADEV(tau = T)                                         (1)
+
+Units: whatever the rate samples are in (count s-1 for the synthetic unit, m s-2, rad s-1, ...);
+tau in seconds. Rate samples ``y_k`` at sample rate ``fs``; the "phase" is the integral
+``theta_k = sum_{j<k} y_j / fs`` (``N = n + 1`` phase points).
+
+Overlapping Allan variance at cluster size ``m`` (tau = m / fs)::
+
+    AVAR(tau) = sum_{k=0}^{N-2m-1} (theta_{k+2m} - 2 theta_{k+m} + theta_k)^2 / (2 tau^2 (N - 2m))     (2)
+
+Confidence intervals: chi-square with the equivalent degrees of freedom of the overlapping estimator for
+white rate noise (Lesage & Audoin's approximation, as tabulated in Riley, NIST SP 1065 §5.3)::
+
+    edf = (3 (N - 1) / (2 m) - 2 (N - 2) / N) * 4 m^2 / (4 m^2 + 5)                          (3)
+
+It is exact only for white rate noise; for flicker and random-walk noise the true edf is smaller, so the
+intervals are somewhat too narrow at the longest taus. This is the "standard simple approximation".
+
+Noise model (IEEE Std 952 Annex C), fitted by non-negative least squares to the AVAR curve::
+
+    AVAR(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + R^2 tau^2 / 2   (4)
+
+Q quantisation, N angle/velocity random walk, B bias instability, K rate random walk, R rate ramp.
+(4) is used to evaluate (1) at a segment duration longer than the longest tau the data support
+(a 60 s segment cannot give ADEV(60 s) by itself; static segments are pooled and the model extrapolates).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, stats
+
+
+class AllanError(ValueError):
+    """Input that gives no usable Allan deviation (too short, flat, non-finite)."""
+
+
+def octave_clusters(n: int, max_fraction: float = 0.5) -> np.ndarray:
+    """Octave-spaced cluster sizes m = 1, 2, 4, ... with 2 m <= max_fraction * 2 * n (i.e. tau <= T/2 by default)."""
+    if n < 3:
+        raise AllanError(f"{n} samples: at least 3 are needed for one Allan variance term")
+    m_max = max(1, int(math.floor(max_fraction * n)))
+    m_max = min(m_max, (n) // 2)
+    out = []
+    m = 1
+    while m <= m_max:
+        out.append(m)
+        m *= 2
+    return np.array(out, dtype=np.int64)
+
+
+def edf_white(n_phase, m):
+    """Equivalent degrees of freedom of the overlapping AVAR, eq. (3) of the module docstring (>= 1)."""
+    N = np.asarray(n_phase, dtype=float)
+    m = np.asarray(m, dtype=float)
+    e = (3.0 * (N - 1.0) / (2.0 * m) - 2.0 * (N - 2.0) / N) * 4.0 * m * m / (4.0 * m * m + 5.0)
+    return np.maximum(e, 1.0)
+
+
+def avar_sums(y, fs: float, ms):
+    """Raw ingredients of eq. (2) for one contiguous record, for pooling over several records.
+
+    ``y`` (n,) or (n, k) rate samples. Returns ``(sumsq (len(ms), k), nterms (len(ms),))`` where
+    ``sumsq`` is the sum of squared second differences of the phase [unit^2 s^2] and ``nterms`` = N - 2m
+    (0 where the record is too short for that m).
+    """
+    y = np.asarray(y, dtype=np.float64)
+    if y.ndim == 1:
+        y = y[:, None]
+    if not np.all(np.isfinite(y)):
+        raise AllanError("rate samples contain NaN or Inf")
+    n = y.shape[0]
+    # remove the mean: AVAR is blind to a constant and the cumulative sum stays small (no cancellation)
+    yc = y - y.mean(axis=0)
+    theta = np.zeros((n + 1, y.shape[1]))
+    np.cumsum(yc / fs, axis=0, out=theta[1:])
+    N = n + 1
+    ms = np.asarray(ms, dtype=np.int64)
+    sumsq = np.zeros((len(ms), y.shape[1]))
+    nterms = np.zeros(len(ms), dtype=np.int64)
+    for i, m in enumerate(ms):
+        k = N - 2 * m
+        if k < 1:
+            continue
+        d = theta[2 * m:] - 2.0 * theta[m:N - m] + theta[:k]
+        sumsq[i] = np.einsum("ij,ij->j", d, d)
+        nterms[i] = k
+    return sumsq, nterms
+
+
+@dataclass
+class NoiseModel:
+    """Coefficients of eq. (4) per axis, in the rate unit of the data (Q in unit*s, N in unit*s^0.5, ...)."""
+
+    Q: np.ndarray
+    N: np.ndarray
+    B: np.ndarray
+    K: np.ndarray
+    R: np.ndarray
+
+    def avar(self, tau):
+        """Model Allan variance (len(tau), naxes) of eq. (4)."""
+        t = np.atleast_1d(np.asarray(tau, dtype=float))[:, None]
+        return (3.0 * self.Q**2 / t**2 + self.N**2 / t + 2.0 * math.log(2.0) / math.pi * self.B**2
+                + self.K**2 * t / 3.0 + self.R**2 * t**2 / 2.0)
+
+    def adev(self, tau):
+        return np.sqrt(self.avar(tau))
+
+
+def _basis(tau):
+    t = np.asarray(tau, dtype=float)
+    return np.stack([3.0 / t**2, 1.0 / t, np.full_like(t, 2.0 * math.log(2.0) / math.pi), t / 3.0, t**2 / 2.0],
+                    axis=1)
+
+
+@dataclass
+class AllanResult:
+    """Overlapping Allan deviation on octave-spaced taus.
+
+    ``tau`` (k,) s; ``adev``, ``lo``, ``hi`` (k, naxes) in the rate unit of the data; ``edf`` (k,);
+    ``nterms`` (k,) number of squared differences summed; ``confidence`` of the [lo, hi] interval.
+    """
+
+    tau: np.ndarray
+    adev: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    edf: np.ndarray
+    nterms: np.ndarray
+    fs: float
+    confidence: float
+    unit: str = ""
+    n_records: int = 1
+    n_samples: int = 0
+    _model: NoiseModel | None = field(default=None, repr=False)
+
+    @property
+    def avar(self):
+        return self.adev**2
+
+    def noise_model(self) -> NoiseModel:
+        """Fit eq. (4) per axis by NNLS with relative weights sqrt(edf/2)/AVAR (two reweighting passes)."""
+        if self._model is not None:
+            return self._model
+        A = _basis(self.tau)
+        coef = np.zeros((5, self.adev.shape[1]))
+        for ax in range(self.adev.shape[1]):
+            av = self.avar[:, ax]
+            w = np.sqrt(self.edf / 2.0) / av
+            c = None
+            for _ in range(3):
+                c, _ = optimize.nnls(A * w[:, None], av * w)
+                model = A @ c
+                w = np.sqrt(self.edf / 2.0) / np.maximum(model, 1e-300)
+            coef[:, ax] = c
+        c = np.sqrt(coef)
+        self._model = NoiseModel(Q=c[0], N=c[1], B=c[2], K=c[3], R=c[4])
+        return self._model
+
+    def sigma_of_mean(self, duration_s, method: str = "model"):
+        """Standard deviation of the mean of a segment lasting ``duration_s`` seconds, per axis.
+
+        Eq. (1): ADEV at tau = duration. ``method='model'`` evaluates the fitted noise model (4) (smooth,
+        extrapolates beyond the longest measured tau); ``'interp'`` interpolates the measured ADEV in
+        log-log and falls back to the model outside the measured range.
+        Returns an array (..., naxes) for scalar or array ``duration_s``.
+        """
+        d = np.asarray(duration_s, dtype=float)
+        if np.any(~np.isfinite(d)) or np.any(d <= 0):
+            raise AllanError(f"segment duration must be positive, got {duration_s}")
+        flat = np.atleast_1d(d).ravel()
+        model = self.noise_model().adev(flat)
+        if method == "interp":
+            lt = np.log(self.tau)
+            for ax in range(self.adev.shape[1]):
+                inside = (flat >= self.tau[0]) & (flat <= self.tau[-1])
+                if inside.any():
+                    model[inside, ax] = np.exp(np.interp(np.log(flat[inside]), lt, np.log(self.adev[:, ax])))
+        elif method != "model":
+            raise ValueError(f"method must be 'model' or 'interp', got {method!r}")
+        return model.reshape(d.shape + (self.adev.shape[1],))
+
+
+def _finish(sumsq, nterms, edf, ms, fs, confidence, unit, n_records, n_samples) -> AllanResult:
+    ok = nterms > 0
+    if not ok.any():
+        raise AllanError("records too short for any Allan variance term")
+    ms, sumsq, nterms, edf = ms[ok], sumsq[ok], nterms[ok], edf[ok]
+    tau = ms / fs
+    av = sumsq / (2.0 * tau[:, None] ** 2 * nterms[:, None])
+    if np.any(av <= 0):
+        ax = int(np.argmax((av <= 0).any(axis=0)))
+        raise AllanError(f"axis {'xyz'[ax] if av.shape[1] == 3 else ax}: Allan variance is zero - the samples are "
+                         "constant (flat data). A flat channel gives no noise estimate; check that the channel "
+                         "is connected and the units are right, or give sigma explicitly")
+    alpha = 1.0 - confidence
+    lo = av * edf[:, None] / stats.chi2.ppf(1.0 - alpha / 2.0, edf)[:, None]
+    hi = av * edf[:, None] / stats.chi2.ppf(alpha / 2.0, edf)[:, None]
+    return AllanResult(tau=tau, adev=np.sqrt(av), lo=np.sqrt(lo), hi=np.sqrt(hi), edf=edf, nterms=nterms, fs=fs,
+                       confidence=confidence, unit=unit, n_records=n_records, n_samples=n_samples)
+
+
+def adev(y, fs: float, *, ms=None, confidence: float = 0.95, unit: str = "") -> AllanResult:
+    """Overlapping Allan deviation of rate samples ``y`` (n,) or (n, naxes) at ``fs`` Hz.
+
+    ``ms``: cluster sizes (default octave-spaced, tau up to half the record). Raises :class:`AllanError`
+    for records shorter than 3 samples or flat (constant) data.
+    """
+    y = np.asarray(y, dtype=np.float64)
+    if y.ndim == 1:
+        y = y[:, None]
+    if not (fs > 0 and math.isfinite(fs)):
+        raise AllanError(f"sample rate must be positive, got {fs}")
+    n = y.shape[0]
+    ms = octave_clusters(n) if ms is None else np.asarray(ms, dtype=np.int64)
+    sumsq, nterms = avar_sums(y, fs, ms)
+    edf = edf_white(n + 1, ms)
+    return _finish(sumsq, nterms, edf, ms, fs, confidence, unit, 1, n)
+
+
+def adev_pooled(records, fs: float, *, confidence: float = 0.95, unit: str = "", max_fraction: float = 0.5):
+    """Allan deviation pooled over several independent contiguous records (e.g. all static segments).
+
+    The squared second differences and their counts are summed over the records, so each record only
+    contributes the taus it can support (tau <= max_fraction x its length); degrees of freedom add.
+    A constant offset per record (a different attitude per static position) does not matter.
+    """
+    recs = [np.asarray(r, dtype=np.float64).reshape(len(r), -1) for r in records if len(r) >= 3]
+    if not recs:
+        raise AllanError("no record with at least 3 samples to pool")
+    nmax = max(len(r) for r in recs)
+    ms_all = octave_clusters(nmax, max_fraction)
+    k = recs[0].shape[1]
+    sumsq = np.zeros((len(ms_all), k))
+    nterms = np.zeros(len(ms_all), dtype=np.int64)
+    edf = np.zeros(len(ms_all))
+    for r in recs:
+        if r.shape[1] != k:
+            raise AllanError("records differ in number of axes")
+        ms = ms_all[ms_all <= max(1, int(max_fraction * len(r)))]
+        s, c = avar_sums(r, fs, ms)
+        sumsq[: len(ms)] += s
+        nterms[: len(ms)] += c
+        edf[: len(ms)] += np.where(c > 0, edf_white(len(r) + 1, ms), 0.0)
+    return _finish(sumsq, nterms, np.maximum(edf, 1.0), ms_all, fs, confidence, unit, len(recs),
+                   sum(len(r) for r in recs))

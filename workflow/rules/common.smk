@@ -1,0 +1,24 @@
+# Shared helpers of the rule files: result paths and the target list.
+import json
+
+R = config["results"]
+CAL = config["calibration"]
+
+
+def sub(section):
+    """A config section as params (values read straight from config would not trigger reruns)."""
+    return json.loads(json.dumps(config[section]))
+
+
+def all_targets():
+    t = [
+        f"{R}/calibration/tables/table2_de_variants.csv",
+        f"{R}/calibration/tables/table4_gyro_paths.csv",
+        f"{R}/calibration/tables/table5_methods.csv",
+        f"{R}/calibration/identifiability.json",
+        f"{R}/navigation/static_check.nc",
+        f"{R}/navigation/figure10_static_check.png",
+        f"{R}/drift/table1_pso.csv",
+        f"{R}/drift/validation_240h.nc",
+    ]
+    return t
