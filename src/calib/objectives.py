@@ -272,6 +272,43 @@ def _k_norm_residuals(th, code, fm, fb, N, T2, w, use_w, out):
 
 
 @numba.njit(cache=True)
+def _k_norm_L(th, code, fm, fb, N, T2, w, use_w, dof, out):
+    """out[p] = sqrt(sum_m r_pm^2 / dof), r of :func:`_k_norm_residuals` (seed 000 eq. 7), inf if not finite."""
+    P = th.shape[0]
+    nm = N.shape[0]
+    for p in range(P):
+        m, b = _k_entries(th[p], code, fm, fb)
+        m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
+        c00 = m11 * m22 - m12 * m21
+        c01 = m02 * m21 - m01 * m22
+        c02 = m01 * m12 - m02 * m11
+        c10 = m12 * m20 - m10 * m22
+        c11 = m00 * m22 - m02 * m20
+        c12 = m02 * m10 - m00 * m12
+        c20 = m10 * m21 - m11 * m20
+        c21 = m01 * m20 - m00 * m21
+        c22 = m00 * m11 - m01 * m10
+        det = m00 * c00 + m01 * c10 + m02 * c20
+        if abs(det) < 1e-300:
+            det = 1e-300
+        inv = 1.0 / det
+        acc = 0.0
+        for k in range(nm):
+            v0 = N[k, 0] - b[0]
+            v1 = N[k, 1] - b[1]
+            v2 = N[k, 2] - b[2]
+            x0 = (c00 * v0 + c01 * v1 + c02 * v2) * inv
+            x1 = (c10 * v0 + c11 * v1 + c12 * v2) * inv
+            x2 = (c20 * v0 + c21 * v1 + c22 * v2) * inv
+            r = T2 - (x0 * x0 + x1 * x1 + x2 * x2)
+            if use_w:
+                r *= w[k]
+            acc += r * r
+        v = np.sqrt(acc / dof)
+        out[p] = v if np.isfinite(v) else np.inf
+
+
+@numba.njit(cache=True)
 def _k_rms(r, dof, out):
     P, n = r.shape
     for p in range(P):
@@ -374,11 +411,13 @@ class NormObjective:
 
     def __call__(self, theta):
         """L (seed 000 eq. 7): sqrt(sum_m r_m^2 / (M - 1)); (P,) for (P, p), scalar for (p,)."""
-        th = np.asarray(theta, dtype=float)
+        th = np.asarray(theta, dtype=np.float64)
         single = th.ndim == 1
-        r = self.residuals_pop(th)
-        L = np.empty(r.shape[0])
-        _k_rms(r, float(self.M - 1), L)
+        if single or not th.flags.c_contiguous:
+            th = np.ascontiguousarray(np.atleast_2d(th))
+        L = np.empty(th.shape[0])
+        w = self._weights() if self.weighted else self._ones
+        _k_norm_L(th, self._code, self._fm, self._fb, self.N, self.T2, w, self.weighted, float(self.M - 1), L)
         return float(L[0]) if single else L
 
     def eq7(self, theta):

@@ -171,6 +171,25 @@ def _k_de_trials(pop, ibest, u, F, bw, CR, lo, hi, force_one, mode, out):
                 out[i, j] = pij
 
 
+@numba.njit(cache=True)
+def _k_select(pop, fit, trials, ft):
+    """Greedy selection eq. 13 in place (a NaN trial never wins); returns (i_best, L_best, L_worst finite)."""
+    NP, D = pop.shape
+    for i in range(NP):
+        if ft[i] < fit[i]:
+            fit[i] = ft[i]
+            for j in range(D):
+                pop[i, j] = trials[i, j]
+    ib = 0
+    worst = -np.inf
+    for i in range(NP):
+        if fit[i] < fit[ib]:
+            ib = i
+        if np.isfinite(fit[i]) and fit[i] > worst:
+            worst = fit[i]
+    return ib, fit[ib], worst
+
+
 def b_weight(t, EG):
     """Weight distribution factor b(t) of seed 000 eq. 16: 2 t / EG - (t / EG)^2."""
     s = t / EG
@@ -208,26 +227,27 @@ def _de_core(objective, bounds, rng, budget, *, method, b_sched, F_const=1.2, CR
             raise ValueError("l_scale must be a positive number or 'initial'")
         l_scale = float(fit[np.isfinite(fit)].min()) if np.isfinite(fit).any() else 1.0
         l_scale = l_scale if l_scale > 0 else 1.0
+    ibest = int(np.argmin(fit))
+    fbest = fit[ibest]
+    finite = fit[np.isfinite(fit)]
+    fworst = finite.max() if finite.size else np.inf
     for t in range(EG):
         bw = b_sched(t, EG)
         if adaptive:
-            finite = fit[np.isfinite(fit)]
-            worst = finite.max() if finite.size else np.inf
-            F = F_adaptive(t, EG, worst, fit.min(), F_max, F_min, alpha, beta, l_scale)
+            F = F_adaptive(t, EG, fworst, fbest, F_max, F_min, alpha, beta, l_scale)
             if not np.isfinite(F):
                 F = F_max
         else:
             F = F_const
         Fh[t] = F
-        ibest = int(np.argmin(fit))
         u = rng.random((NP, 4 + 2 * D))
         _k_de_trials(pop, ibest, u, F, bw, CR, lo, hi, force_one, mode, trials)
-        ft = _evaluate(objective, trials)
+        ft = np.asarray(objective(trials), dtype=np.float64)
+        if ft.shape != (NP,):
+            raise ValueError(f"objective returned shape {ft.shape} for a population of {NP}")
         nfev += NP
-        better = ft < fit  # eq. 13 (strict), minimising L == maximising f = 1/L
-        pop[better] = trials[better]
-        fit[better] = ft[better]
-        hist[t + 1] = fit.min()
+        ibest, fbest, fworst = _k_select(pop, fit, trials, ft)  # eq. 13 (strict); min L == max f = 1/L
+        hist[t + 1] = fbest
         if callback is not None and callback(t + 1, pop, fit):
             hist = hist[: t + 2]
             Fh = Fh[: t + 1]
@@ -389,7 +409,8 @@ def scipy_de(objective, bounds, rng, budget=(60, 1200), *, strategy="best1bin", 
                                  recombination=recombination, polish=False, tol=0.0, atol=0.0,
                                  updating="deferred", vectorized=True, callback=cb,
                                  rng=np.random.default_rng(rng.integers(2**63)), **kw)
-    return Result(x=np.asarray(res.x), fun=float(res.fun), history=np.array(hist), nfev=int(res.nfev),
+    # scipy counts calls of the vectorised function in res.nfev; report evaluations: NP x (generations + 1)
+    return Result(x=np.asarray(res.x), fun=float(res.fun), history=np.array(hist), nfev=NP * (int(res.nit) + 1),
                   method="scipy_de", nit=int(res.nit), time_s=time.perf_counter() - t0, message=str(res.message),
                   on_bound=bound_hits(np.asarray(res.x), lo, hi))
 

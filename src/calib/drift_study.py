@@ -1,0 +1,277 @@
+"""Seed 001 study: 50 PSOBE tests, Table 1, Figures 2-4, the noise limit and the baselines.
+
+Called by the workflow rules ``drift_pso`` and ``drift_validation`` and by ``calib drift``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from . import drift, earth, figures, pso, recording, strapdown
+from .earth import DEG_PER_H
+from .ncio import write_netcdf
+from .runlog import Progress
+
+AXES = ["x", "y", "z"]
+#: seed 001 Table 1 (PSOBE, 50 tests) and its Ac values (§IV.A), for comparison
+PAPER_TABLE1 = {"max": [-0.01032, 0.01077, 0.01079], "min": [-0.01048, 0.01067, 0.009786],
+                "mean": [-0.01038, 0.01073, 0.01046], "std": [3.39e-5, 1.735e-5, 1.913e-4],
+                "Ac_pct": [96.2, 92.7, 95.4]}
+
+
+def _attitude_rad(att: dict):
+    return tuple(math.radians(att[k]) for k in ("pitch", "roll", "yaw"))
+
+
+def _noise_psd(session: dict):
+    """Process-noise parameters of the session for the linear error model: (ARW [rad/sqrt(s)], white [rad/s])."""
+    gn = session["gyro_noise"]
+    if gn["model"] == "arw":
+        return gn.get("arw_deg_rth", 0.0) * math.pi / 180.0 / 60.0, 0.0
+    return 0.0, gn.get("white_deg_h", 0.0) * DEG_PER_H
+
+
+def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings, fig2, fig3, metrics_path,
+                  session: dict, site: dict, nav: dict, dcfg: dict, seed: int, prov=None, log=print):
+    """The 50 repeated PSOBE tests on one noise realisation, with the noise limit and the baselines."""
+    t_start = time.perf_counter()
+    att = _attitude_rad(session["attitude_deg"])
+    win = drift.load_window(recording_path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
+    log(f"window: {win.n_samples} samples ({dcfg['window_h']} h) pre-integrated to {len(win.Dtheta)} steps "
+        f"of {win.dt_nav} s in {time.perf_counter() - t_start:.1f} s")
+    cost = drift.NavigationCost(win, dcfg["output_interval_s"], dcfg["weights"], dcfg["position_unit"])
+    settings = pso.PSOSettings.from_config(dcfg["pso"])
+    truth = np.asarray(session["gyro_drift_deg_h"], float)
+    if np.any(truth < settings.lower) or np.any(truth > settings.upper):
+        log(f"WARNING: the true drift {truth} deg/h lies outside the PSO search range "
+            f"[{settings.lower}, {settings.upper}]: the estimate will be pinned to a bound")
+    n_tests = int(dcfg["tests"])
+    G = settings.generations
+    est = np.empty((n_tests, 3))
+    hist = np.empty((n_tests, G + 1))
+    pinned = np.zeros((n_tests, 3), bool)
+    bar = Progress(n_tests, "PSOBE tests")
+    t0 = time.perf_counter()
+    for k in range(n_tests):
+        rng = np.random.default_rng(seed + k)
+        r = pso.minimize(cost, rng, settings)
+        est[k], hist[k] = r.best, r.history
+        pinned[k, r.pinned] = True
+        bar(k + 1, f"test {k + 1}: eps = {np.array2string(r.best, precision=5)} deg/h, J = {r.best_cost:.4g}")
+    t_pso = time.perf_counter() - t0
+    if pinned.any():
+        log(f"FLAG: best particle pinned to the search-range bound in {int(pinned.any(1).sum())} of {n_tests} "
+            f"tests (axes {[AXES[i] for i in np.where(pinned.any(0))[0]]}): widen drift.pso.lower/upper")
+
+    # ---- noise limit, for the configured noise, window and initial condition ----
+    arw, white = _noise_psd(session)
+    C = win.init.cbn()
+    dt_out = cost.out_every * win.dt_nav
+    cond = dcfg["initial_condition"]
+    crb, _ = drift.noise_limit(dcfg["window_h"], dt_out, win.lat0, C, arw, cond, win.h0, white, 1.0 / win.sample_rate_hz)
+    crb_deg_h = crb / DEG_PER_H
+    log(f"Cramer-Rao bound (1 sigma, nuisance: accelerometer biases, initial condition {cond}): "
+        f"{np.array2string(crb_deg_h, precision=6)} deg/h")
+
+    # ---- baselines ----
+    base = {}
+    timing = {"pso_50_tests_s": t_pso, "pso_one_test_s": t_pso / n_tests}
+    t = time.perf_counter()
+    e, _, n_runs = drift.linear_lsq(cost, with_accel_bias=False)
+    timing["lls_drift_only_s"] = time.perf_counter() - t
+    base["lls_drift_only"] = e
+    t = time.perf_counter()
+    e, ab, n_runs = drift.linear_lsq(cost, with_accel_bias=True)
+    timing["lls_with_accel_bias_s"] = time.perf_counter() - t
+    base["lls_with_accel_bias"] = e
+    t = time.perf_counter()
+    e, se, _ = drift.kalman_baseline(cost, arw, cond, True, white, 1.0 / win.sample_rate_hz)
+    timing["kalman_s"] = time.perf_counter() - t
+    base["kalman"] = e
+    base["pso_mean"] = est.mean(0)
+
+    # ---- products ----
+    tab = drift.table1(est, truth)
+    ds = xr.Dataset(
+        {
+            "estimate": (("test", "axis"), est, {"units": "deg h-1", "long_name": "PSOBE gyro-drift estimate"}),
+            "J_history": (("test", "generation"), hist, {"units": "J of seed 001 eq. 18",
+                                                         "long_name": "J of the global best per generation"}),
+            "pinned": (("test", "axis"), pinned.astype(np.int8), {"long_name": "best particle on a range bound"}),
+            "truth": (("axis",), truth, {"units": "deg h-1"}),
+            "crb": (("axis",), crb_deg_h, {"units": "deg h-1", "long_name": "Cramer-Rao bound, 1 sigma"}),
+            "baseline": (("method", "axis"), np.array([base[m] for m in base]), {"units": "deg h-1"}),
+        },
+        coords={"test": np.arange(1, n_tests + 1), "axis": AXES, "generation": np.arange(G + 1),
+                "method": list(base)},
+        attrs={"position_unit": dcfg["position_unit"], "weights": json.dumps(dcfg["weights"]),
+               "initial_condition": cond, "window_h": dcfg["window_h"], "pso_variant": settings.variant,
+               "frame": "body axes (default: along east-north-up)"},
+    )
+    write_netcdf(ds, out_nc, prov)
+    _write_table1(out_table, tab, crb_deg_h)
+    _write_baselines(out_baselines, base, truth, crb_deg_h)
+    Path(out_timings).write_text("quantity,seconds\n" + "".join(f"{k},{v:.4f}\n" for k, v in timing.items()))
+    _fig2(fig2, est, truth, crb_deg_h)
+    _fig3(fig3, hist[0], dcfg["position_unit"])
+    z = (est.mean(0) - truth) / crb_deg_h
+    metrics = {"Ac_of_mean_pct": dict(zip(AXES, tab["Ac_of_mean_pct"].tolist())),
+               "crb_deg_h": dict(zip(AXES, crb_deg_h.tolist())),
+               "pso_mean_error_in_bounds": dict(zip(AXES, z.tolist())),
+               "pso_spread_over_bound": dict(zip(AXES, (tab["std"] / crb_deg_h).tolist())),
+               **{f"{m}_error_in_bounds": dict(zip(AXES, ((base[m] - truth) / crb_deg_h).tolist())) for m in base}}
+    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    log(json.dumps(metrics, indent=2))
+    return ds
+
+
+def _write_table1(path, tab, crb):
+    rows = ["axis,max_deg_h,min_deg_h,mean_deg_h,std_deg_h,reference_deg_h,Ac_of_mean_pct,Ac_mean_pct,"
+            "crb_1sigma_deg_h,Ac_limit_1sigma_pct,paper_mean_deg_h,paper_std_deg_h,paper_Ac_pct"]
+    for i, a in enumerate(AXES):
+        lim = 100.0 * (1.0 - crb[i] / abs(tab["reference"][i]))
+        rows.append(",".join([f"eps_{a}"] + [f"{tab[k][i]:.6g}" for k in ("max", "min", "mean", "std", "reference",
+                                                                            "Ac_of_mean_pct", "Ac_mean_pct")]
+                             + [f"{crb[i]:.6g}", f"{lim:.2f}", f"{PAPER_TABLE1['mean'][i]}",
+                                f"{PAPER_TABLE1['std'][i]}", f"{PAPER_TABLE1['Ac_pct'][i]}"]))
+    Path(path).write_text("\n".join(rows) + "\n")
+
+
+def _write_baselines(path, base, truth, crb):
+    rows = ["method,eps_x_deg_h,eps_y_deg_h,eps_z_deg_h,Ac_x_pct,Ac_y_pct,Ac_z_pct,err_x_over_crb,err_y_over_crb,"
+            "err_z_over_crb"]
+    for m, e in base.items():
+        ac = pso.accuracy(e, truth)
+        z = (e - truth) / crb
+        rows.append(",".join([m] + [f"{v:.6g}" for v in e] + [f"{v:.2f}" for v in ac] + [f"{v:.2f}" for v in z]))
+    Path(path).write_text("\n".join(rows) + "\n")
+
+
+def _fig2(path, est, truth, crb):
+    import matplotlib.pyplot as plt
+
+    fig, axs = plt.subplots(3, 1, figsize=(6.5, 6.5), sharex=True)
+    k = np.arange(1, len(est) + 1)
+    for i, ax in enumerate(axs):
+        ax.plot(k, est[:, i], "o-", ms=3, lw=0.8, label="PSOBE estimate")
+        ax.axhline(truth[i], color="k", lw=1, label="reference")
+        ax.axhspan(truth[i] - 2 * crb[i], truth[i] + 2 * crb[i], color="C2", alpha=0.15, label="reference ± 2 CRB")
+        ax.set_ylabel(f"ε_{AXES[i]} [°/h]")
+    axs[0].legend(fontsize=7, loc="best")
+    axs[-1].set_xlabel("test")
+    fig.suptitle("Seed 001 Fig. 2: gyro drift estimated in each PSOBE test")
+    fig.tight_layout()
+    figures.save(fig, path)
+
+
+def _fig3(path, hist, unit):
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.semilogy(np.arange(len(hist)), hist, "o-", ms=3)
+    ax.set_xlabel("generation")
+    ax.set_ylabel(f"J of eq. 18 (position in {unit})")
+    ax.set_title("Seed 001 Fig. 3: J of the global best, test 1")
+    fig.tight_layout()
+    figures.save(fig, path)
+
+
+def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: dict, site: dict, nav: dict,
+                   dcfg: dict, prov=None, log=print, chunk=2_000_000):
+    """Navigate the whole recording (240 h) without and with compensation by the mean PSOBE estimate (and by
+    the Kalman baseline), in one streamed pass with three streams; seed 001 Figure 4."""
+    with xr.open_dataset(pso_nc, engine="netcdf4") as p:
+        mean_est = p["estimate"].values.mean(0)
+        kal = p["baseline"].sel(method="kalman").values
+        crb = p["crb"].values
+    truth = np.asarray(session["gyro_drift_deg_h"], float)
+    h = recording.read_header(recording_path)
+    att = _attitude_rad(session["attitude_deg"])
+    lat0, lon0 = math.radians(h.latitude_deg), math.radians(site.get("longitude_deg", 0.0))
+    init = strapdown.NavInit(lat=lat0, lon=lon0, h=h.height_m, pitch=att[0], roll=att[1], yaw=att[2])
+    n_sub = int(round(h.sample_rate_hz / nav["nav_rate_hz"]))
+    dt_nav = n_sub / h.sample_rate_hz
+    out_every = max(1, int(round(nav["output_interval_s"] / dt_nav)))
+    streams = np.array([np.zeros(3), mean_est, kal]) * DEG_PER_H
+    names = ["uncompensated", "pso_mean", "kalman"]
+    state, carry, outs = None, None, []
+    bar = Progress(h.n_samples, "240 h navigation")
+    for i0, acc, gyr in recording.iter_raw_chunks(recording_path, h, chunk=chunk):
+        dth = recording.to_si(gyr, h.gyro_units, h.gyro_kind, h.dt, "gyro")
+        dv = recording.to_si(acc, h.accel_units, h.accel_kind, h.dt, "accel")
+        if carry is None:
+            carry = strapdown.new_carry(dth[0], dv[0])
+        D1, D2 = strapdown.preintegrate(dth, dv, n_sub, carry)
+        o, state = strapdown.navigate_multi(D1, D2, dt_nav, state or init, streams, None, out_every)
+        outs.append(o)
+        bar(i0 + len(acc))
+    out = np.concatenate(outs, axis=1)
+    t_h = np.arange(1, out.shape[1] + 1) * out_every * dt_nav / 3600.0
+    wrap = lambda a: (a + math.pi) % (2 * math.pi) - math.pi  # noqa: E731
+    arcmin = 180.0 / math.pi * 60.0
+    r_m, r_n = earth.radii(lat0)
+    data = {
+        "pitch_err": (("stream", "time"), arcmin * wrap(out[..., 0] - att[0]), {"units": "arcmin"}),
+        "roll_err": (("stream", "time"), arcmin * wrap(out[..., 1] - att[1]), {"units": "arcmin"}),
+        "yaw_err": (("stream", "time"), arcmin * wrap(out[..., 2] - att[2]), {"units": "arcmin"}),
+        "vE_err": (("stream", "time"), out[..., 3], {"units": "m s-1"}),
+        "vN_err": (("stream", "time"), out[..., 4], {"units": "m s-1"}),
+        "lon_err": (("stream", "time"), arcmin * (out[..., 7] - lon0), {"units": "arcmin"}),
+        "lat_err": (("stream", "time"), arcmin * (out[..., 6] - lat0), {"units": "arcmin"}),
+        "compensation": (("stream", "axis"), streams / DEG_PER_H, {"units": "deg h-1"}),
+    }
+    ds = xr.Dataset(data, coords={"stream": names, "time": ("time", t_h, {"units": "h"}), "axis": AXES},
+                    attrs={"frame": "errors = computed - true; attitude C_b^n = Rz(yaw) Rx(pitch) Ry(roll), ENU",
+                           "nav_rate_hz": nav["nav_rate_hz"], "vertical_channel": "held at the initial height"})
+    write_netcdf(ds, out_nc, prov)
+    _fig4(fig4, ds)
+    # residual drift along the Earth axis drives longitude: d(lambda)/dt = eps_N cos L + eps_U sin L (ENU)
+    C = init.cbn()
+    metrics = {}
+    for s, name in enumerate(names):
+        resid = C @ ((truth - streams[s] / DEG_PER_H) * DEG_PER_H)
+        polar = resid[1] * math.cos(lat0) + resid[2] * math.sin(lat0)
+        # steady-state longitude error grows at -polar (error = computed - true with the error-model signs)
+        from . import errormodel
+
+        rate = errormodel.longitude_rate(lat0, C.T @ resid, C)
+        pred = rate * t_h[-1] * 3600.0 * arcmin
+        metrics[name] = {"lon_err_240h_arcmin": float(ds["lon_err"].values[s, -1]),
+                         "lon_err_predicted_arcmin": float(pred),
+                         "residual_polar_drift_deg_h": float(polar / DEG_PER_H),
+                         "max_abs_vE_m_s": float(np.abs(ds["vE_err"].values[s]).max()),
+                         "max_abs_vN_m_s": float(np.abs(ds["vN_err"].values[s]).max())}
+    # bound on the polar component of the estimate: propagate the per-axis CRB (independent approximation)
+    cvec = C.T @ np.array([0.0, math.cos(lat0), math.sin(lat0)])
+    metrics["polar_bound_deg_h"] = float(math.sqrt(np.sum((cvec * crb) ** 2)))
+    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    log(json.dumps(metrics, indent=2))
+    return ds
+
+
+def _fig4(path, ds):
+    import matplotlib.pyplot as plt
+
+    panels = [("pitch_err", "pitch [′]"), ("roll_err", "roll [′]"), ("yaw_err", "yaw [′]"),
+              ("vE_err", "east velocity [m/s]"), ("vN_err", "north velocity [m/s]"),
+              ("lon_err", "longitude [′]"), ("lat_err", "latitude [′]")]
+    fig, axs = plt.subplots(4, 2, figsize=(9, 9), sharex=True)
+    t = ds["time"].values
+    for ax, (var, lab) in zip(axs.flat, panels):
+        for s, color in zip(ds["stream"].values[:2], ("C0", "C3")):
+            ax.plot(t, ds[var].sel(stream=s).values, color=color, lw=0.8,
+                    label="without compensation" if s == "uncompensated" else "compensated (PSOBE mean)")
+        ax.set_ylabel(lab)
+    axs.flat[-1].axis("off")
+    axs.flat[0].legend(fontsize=7)
+    for ax in axs[-1]:
+        ax.set_xlabel("time [h]")
+    axs[2, 1].set_xlabel("time [h]")
+    fig.suptitle("Seed 001 Fig. 4: navigation errors with and without drift compensation")
+    fig.tight_layout()
+    figures.save(fig, path)
