@@ -15,7 +15,7 @@ import xarray as xr
 from calib import earth, effects, recording, simulate, trajectory
 from calib.recording import STANDARD_GRAVITY
 from calib.sensors import seed000_model
-from calib.transforms import euler_to_dcm, rot_x, rot_y, rot_z
+from calib.transforms import dcm_to_rotvec, euler_to_dcm, rot_x, rot_y, rot_z, rotvec_to_dcm
 
 LAT, H = 30.58, 0.0
 SITE = {"latitude_deg": LAT, "height_m": H}
@@ -208,8 +208,9 @@ def _revolution_check(ds, tol_deg):
         u = ds["rotation_axis"].values[j]
         rate = float(ds["rotation_rate"].values[j])
         assert T == pytest.approx(360.0 / abs(rate))  # one whole revolution in the window
-        # about the vertical axis: the table angle plus the Earth rate's up component W sin L
-        expect = math.copysign(360.0, rate) + math.degrees(earth.OMEGA_IE * math.sin(math.radians(LAT))) * T
+        # the table angle plus the Earth rate along the axis (up: W sin L; north: W cos L)
+        along = (ds["nominal_attitude"].values[j] @ u) @ W_IE_N
+        expect = math.copysign(360.0, rate) + math.degrees(along) * T
         assert abs(angle @ u - expect) < tol_deg(T), (str(ds["segment_label"].values[j]), angle @ u - expect)
         # the horizontal Earth rate integrates to zero over whole revolutions
         assert np.all(np.abs(angle - (angle @ u) * u) < tol_deg(T))
@@ -221,6 +222,16 @@ def test_rotation_windows_integrate_to_whole_revolutions(noisy, quiet):
     # 5 sigma: angle random walk ARW sqrt(T), bias instability s_b T, plus < 1 count of quantisation
     _revolution_check(noisy[1], lambda T: 5 * (nz["gyro_arw_deg_rth"] * math.sqrt(T / 3600.0)
                                             + nz["gyro_bias_instability_deg_h"] * T / 3600.0) + 1e-6)
+
+
+def test_horizontal_rotation_windows(tmp_path):
+    cfg = {**SHORT, "positions_per_phase": 1, "rotation_rates_deg_s": [30.0], "rotation_axes": "vertical+horizontal",
+           "noise": QUIET}
+    ds = recording.load(simulate.simulate_calibration_session(cfg, 1, tmp_path / "h.nc"))
+    labels = [str(x) for x in ds["segment_label"].values]
+    assert labels[3:9] == ["ROT-x+30", "ROT-x-30", "ROT-y+30", "ROT-y-30", "ROT-z+30", "ROT-z-30"]
+    assert labels[9:] == ["ROTH-x+30", "ROTH-x-30", "ROTH-y+30", "ROTH-y-30", "ROTH-z+30", "ROTH-z-30"]
+    _revolution_check(ds, lambda T: 1e-6)
 
 
 def test_quantisation_tracks_integral(noisy):
@@ -526,12 +537,13 @@ def test_static_physical_white_reading_and_vrw(tmp_path):
     np.testing.assert_allclose(dv.std(0), 20e-6 * STANDARD_GRAVITY * math.sqrt(DT), rtol=0.03)
 
 
-@pytest.mark.parametrize("mode", ["physical", "counts"])
-def test_static_chunk_size_independent(tmp_path, mode):
+@pytest.mark.parametrize("mode,effect", [("physical", None), ("counts", None), ("counts", "bias_drift"),
+                                         ("counts", "temperature_sensitivity")])
+def test_static_chunk_size_independent(tmp_path, mode, effect):
     cfg = {**PHYS, "duration_h": 0.25, "mode": mode}  # 90,000 samples: crosses a noise block
     if mode == "counts":
         cfg = {k: v for k, v in cfg.items() if k in simulate.STATIC_COUNTS_DEFAULTS}
-        cfg["effects"] = {"bias_drift": {}}
+        cfg["effects"] = {effect: {}} if effect else {}
     a = _read_all(simulate.simulate_static_session(cfg, 3, tmp_path / "a.nc", chunk_samples=7_777))
     b = _read_all(simulate.simulate_static_session(cfg, 3, tmp_path / "b.nc", chunk_samples=1 << 20))
     np.testing.assert_array_equal(a[1], b[1])
@@ -550,3 +562,24 @@ def test_static_counts_matches_unit(tmp_path):
     np.testing.assert_array_less(np.abs(ds["accel"].values.astype(float).sum(0) / T - ra), 1.0 / T)
     np.testing.assert_array_less(np.abs(ds["gyro"].values.astype(float).sum(0) / T - rg), 1.0 / T)
     assert ds.attrs["effects_enabled"] == "none"
+
+
+def test_gyro_sees_the_transitions(quiet):
+    """Strapdown attitude propagation of the quantised gyro output (converted with the true model) carries
+    the nominal attitude at the end of each segment to the nominal attitude at the start of the next:
+    C_{k+1} = exp(-[w_ie^n dt x]) C_k exp([dtheta_k x])."""
+    ds = quiet
+    segs = seg_slices(ds)
+    nom = ds["nominal_attitude"].values
+    rate = np.linalg.solve(GYR.KE, (ds["gyro"].values / DT - GYR.b).T).T * earth.DEG_PER_H  # rad/s
+    dth = rate * DT
+    earth_step = rotvec_to_dcm(-W_IE_N * DT)
+    worst = 0.0
+    for j in range(len(segs) - 1):
+        c = nom[j]  # statics end where they start; rotation windows after whole revolutions
+        for k in range(segs[j].stop, segs[j + 1].start):
+            c = earth_step @ c @ rotvec_to_dcm(dth[k])
+        err = np.linalg.norm(dcm_to_rotvec(c.T @ nom[j + 1]))
+        worst = max(worst, err)
+    # 1 count of quantisation is 1.2e-10 rad; allow float round-off over ~1,000-sample transitions
+    assert worst < 1e-8

@@ -33,8 +33,12 @@ Noise model (IEEE Std 952 Annex C), fitted by non-negative least squares to the 
     AVAR(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + R^2 tau^2 / 2   (4)
 
 Q quantisation, N angle/velocity random walk, B bias instability, K rate random walk, R rate ramp.
-(4) is used to evaluate (1) at a segment duration longer than the longest tau the data support
-(a 60 s segment cannot give ADEV(60 s) by itself; static segments are pooled and the model extrapolates).
+(4) is used to evaluate (1). Inside the measured tau range the full model is used. A segment mean of
+duration T needs ADEV(T), but T-long segments only support tau <= T/2 (static segments are pooled for the
+estimate); beyond the longest measured tau a term fitted to one noisy long-tau point would blow up the
+extrapolation, so there the model is refitted with the terms the data clearly support (penalised choice
+among Q, N, B, K; the ramp R is never extrapolated). A long static recording (tau_max >= T) removes the
+extrapolation; :attr:`AllanResult.tau` shows what the data support.
 """
 from __future__ import annotations
 
@@ -60,6 +64,8 @@ def octave_clusters(n: int, max_fraction: float = 0.5) -> np.ndarray:
     while m <= m_max:
         out.append(m)
         m *= 2
+    if out[-1] < m_max and m_max >= 1.25 * out[-1]:
+        out.append(m_max)  # the longest cluster the record supports (tau = T / 2 by default)
     return np.array(out, dtype=np.int64)
 
 
@@ -147,17 +153,21 @@ class AllanResult:
     unit: str = ""
     n_records: int = 1
     n_samples: int = 0
-    _model: NoiseModel | None = field(default=None, repr=False)
+    _models: dict = field(default_factory=dict, repr=False)
 
     @property
     def avar(self):
         return self.adev**2
 
-    def noise_model(self) -> NoiseModel:
-        """Fit eq. (4) per axis by NNLS with relative weights sqrt(edf/2)/AVAR (two reweighting passes)."""
-        if self._model is not None:
-            return self._model
-        A = _basis(self.tau)
+    def noise_model(self, terms=("Q", "N", "B", "K", "R")) -> NoiseModel:
+        """Fit eq. (4) per axis with the given ``terms`` by NNLS, relative weights sqrt(edf/2)/AVAR (reweighted
+        twice with the model); terms left out are zero."""
+        key = tuple(terms)
+        if key in self._models:
+            return self._models[key]
+        names = ("Q", "N", "B", "K", "R")
+        use = [names.index(t) for t in terms]
+        A = _basis(self.tau)[:, use]
         coef = np.zeros((5, self.adev.shape[1]))
         for ax in range(self.adev.shape[1]):
             av = self.avar[:, ax]
@@ -167,33 +177,64 @@ class AllanResult:
                 c, _ = optimize.nnls(A * w[:, None], av * w)
                 model = A @ c
                 w = np.sqrt(self.edf / 2.0) / np.maximum(model, 1e-300)
-            coef[:, ax] = c
+            coef[use, ax] = c
         c = np.sqrt(coef)
-        self._model = NoiseModel(Q=c[0], N=c[1], B=c[2], K=c[3], R=c[4])
-        return self._model
+        self._models[key] = NoiseModel(Q=c[0], N=c[1], B=c[2], K=c[3], R=c[4])
+        return self._models[key]
+
+    def misfit(self, model: NoiseModel) -> np.ndarray:
+        """Per-axis sum over taus of (edf/2) ln(AVAR_obs / AVAR_model)^2 (approximate -2 log-likelihood)."""
+        mod = model.avar(self.tau)
+        return np.sum(self.edf[:, None] / 2.0 * np.log(self.avar / mod) ** 2, axis=0)
+
+    def extrapolation_model(self, penalty: float = 16.0) -> NoiseModel:
+        """Model for taus beyond the data: terms chosen per axis among the subsets of {Q, N, B, K} that contain
+        N, by misfit + ``penalty`` x (number of terms); a term must clearly improve the fit to be kept (a floor
+        or random walk fitted to one noisy long-tau point would otherwise inflate every extrapolated sigma).
+        The rate ramp R is never extrapolated. The default penalty keeps white-noise data at the white law
+        (checked over 40 seeds: ratio 1.000 +- 0.003) and picks up a random walk that dominates the longest
+        measured taus; a random walk that only matters beyond them cannot be seen (record a long static
+        segment)."""
+        if ("extrap", penalty) in self._models:
+            return self._models[("extrap", penalty)]
+        cands = [("N",), ("Q", "N"), ("N", "B"), ("Q", "N", "B"), ("N", "K"), ("Q", "N", "K"), ("N", "B", "K"),
+                 ("Q", "N", "B", "K")]
+        fits = [self.noise_model(c) for c in cands]
+        crit = np.array([self.misfit(f) + penalty * len(c) for f, c in zip(fits, cands)])  # (4, naxes)
+        best = np.argmin(crit, axis=0)
+        pick = {k: np.array([getattr(fits[best[a]], k)[a] for a in range(self.adev.shape[1])])
+                for k in ("Q", "N", "B", "K", "R")}
+        m = NoiseModel(**pick)
+        self._models[("extrap", penalty)] = m
+        return m
 
     def sigma_of_mean(self, duration_s, method: str = "model"):
         """Standard deviation of the mean of a segment lasting ``duration_s`` seconds, per axis.
 
-        Eq. (1): ADEV at tau = duration. ``method='model'`` evaluates the fitted noise model (4) (smooth,
-        extrapolates beyond the longest measured tau); ``'interp'`` interpolates the measured ADEV in
-        log-log and falls back to the model outside the measured range.
+        Eq. (1): ADEV at tau = duration. ``method='model'``: the fitted noise model (4) with all terms inside
+        the measured tau range, and with the non-rising terms (:meth:`extrapolation_model`) beyond it;
+        ``'interp'``: log-log interpolation of the measured ADEV inside the range, the model outside.
         Returns an array (..., naxes) for scalar or array ``duration_s``.
         """
         d = np.asarray(duration_s, dtype=float)
         if np.any(~np.isfinite(d)) or np.any(d <= 0):
             raise AllanError(f"segment duration must be positive, got {duration_s}")
         flat = np.atleast_1d(d).ravel()
-        model = self.noise_model().adev(flat)
+        inside = flat <= self.tau[-1] * (1.0 + 1e-9)
+        out = np.empty((flat.size, self.adev.shape[1]))
+        if inside.any():
+            out[inside] = self.noise_model().adev(flat[inside])
+        if (~inside).any():
+            out[~inside] = self.extrapolation_model().adev(flat[~inside])
         if method == "interp":
             lt = np.log(self.tau)
+            sel = inside & (flat >= self.tau[0])
             for ax in range(self.adev.shape[1]):
-                inside = (flat >= self.tau[0]) & (flat <= self.tau[-1])
-                if inside.any():
-                    model[inside, ax] = np.exp(np.interp(np.log(flat[inside]), lt, np.log(self.adev[:, ax])))
+                if sel.any():
+                    out[sel, ax] = np.exp(np.interp(np.log(flat[sel]), lt, np.log(self.adev[:, ax])))
         elif method != "model":
             raise ValueError(f"method must be 'model' or 'interp', got {method!r}")
-        return model.reshape(d.shape + (self.adev.shape[1],))
+        return out.reshape(d.shape + (self.adev.shape[1],))
 
 
 def _finish(sumsq, nterms, edf, ms, fs, confidence, unit, n_records, n_samples) -> AllanResult:

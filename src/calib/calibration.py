@@ -130,8 +130,9 @@ class CalibrationResult:
 
     @property
     def how_to_apply(self) -> str:
+        short = self.frame.split(":")[0].split(" (")[0]
         return (f"N [{self.output_unit}] = counts / dt for increment channels (the sample itself for rate "
-                f"channels); x [{self.input_unit}, {self.frame.split(':')[0]}] = (K E)^-1 (N - b)")
+                f"channels); x [{self.input_unit}, {short}] = (K E)^-1 (N - b)")
 
     def apply(self, raw, *, sample_kind: str = "rate", dt: float | None = None) -> np.ndarray:
         """Calibrated input (n, 3) [input unit] from raw output (n, 3): x = (K E)^-1 (N - b)."""
@@ -535,9 +536,10 @@ def gyro_dynamic(pairs: RotationPairs, static: StaticMeans, *, method: str = "id
                             names=PARAM_NAMES, x=x, cov=cov, KE=M, b=b, input_unit=static.input_unit,
                             output_unit=static.output_unit, frame=FRAME_UNDETERMINED,
                             objective="L_gm (eq. 26)" + (" relative" if relative else ""), L=r1.fun, chi2=chi2,
-                            dof=pairs.n - rep1.rank, rank=rep1.rank, identifiability=rep1, on_bound=on_bound,
+                            dof=pairs.n - rep1.rank, rank=rep1.rank + 3, identifiability=rep1, on_bound=on_bound,
                             notes=notes, optimizer=r1, undetermined=und)
     res.derived["L_g"] = bias.eq7(b)
+    res.derived["lgm_rank"] = (rep1.rank, 9)
     res.derived["bias_optimizer"] = r2
     return res
 

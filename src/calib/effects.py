@@ -101,6 +101,17 @@ class Effect(NamedTuple):
     doc: str
 
 
+def rows_times(x, m):
+    """``x @ m.T`` for (n, 3) rows and a 3x3 matrix, written out elementwise.
+
+    Each output element is computed by the same three products and two sums whatever ``n`` is, so a
+    chunked evaluation gives bit-identical results for every chunk size (a BLAS product need not).
+    """
+    m = np.asarray(m, dtype=float)
+    x0, x1, x2 = x[:, 0:1], x[:, 1:2], x[:, 2:3]
+    return x0 * m[:, 0] + x1 * m[:, 1] + x2 * m[:, 2]
+
+
 # ---- accelerometer terms --------------------------------------------------------------------------
 
 def _accel_quadratic(ctx: SensorContext, p):
@@ -120,7 +131,7 @@ def _accel_cross(ctx: SensorContext, p):
     np.fill_diagonal(c, 0.0)
     f = ctx.f_b
     # d_i = f_i * sum_j C_ij f_j
-    return f * (f @ c.T), None
+    return f * rows_times(f, c), None
 
 
 def _accel_lever(ctx: SensorContext, p):
@@ -130,7 +141,7 @@ def _accel_lever(ctx: SensorContext, p):
     for i in range(3):
         ri = np.broadcast_to(r[i], w.shape)
         a = np.cross(w, np.cross(w, ri)) + np.cross(dw, ri)  # m/s^2, body frame
-        out[:, i] = a @ ctx.E_a[i] / STANDARD_GRAVITY
+        out[:, i] = rows_times(a, ctx.E_a[i:i + 1])[:, 0] / STANDARD_GRAVITY
     return out, None
 
 
@@ -138,7 +149,7 @@ def _accel_lever(ctx: SensorContext, p):
 
 def _gyro_gsens(ctx: SensorContext, p):
     g = np.asarray(p["G_deg_h_per_g"], dtype=float)
-    return None, ctx.f_b @ g.T
+    return None, rows_times(ctx.f_b, g)
 
 
 def _gyro_asym(ctx: SensorContext, p):

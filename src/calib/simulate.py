@@ -393,8 +393,8 @@ class CountsEngine:
         f, w, wnb, dwnb = self.inputs_fn(tn)
         fg = f / STANDARD_GRAVITY
         wd = w / earth.DEG_PER_H
-        ya = fg @ self.accel.E.T
-        yg = wd @ self.gyro.E.T
+        ya = effects.rows_times(fg, self.accel.E)
+        yg = effects.rows_times(wd, self.gyro.E)
         if self.eff:
             ctx = effects.SensorContext(tn, fg, wd, ya, yg, wnb, dwnb, temperature_profile(tn, self.temp),
                                         self.accel.E, self.gyro.E)
@@ -403,10 +403,11 @@ class CountsEngine:
             yg = yg + dg
         na = ya * self.accel.K + self.accel.b
         ng = yg * self.gyro.K + self.gyro.b
-        wq = self.w_nodes[None, :, None] * dt
-        out = np.empty((n, 6))
-        out[:, :3] = (na.reshape(n, m, 3) * wq).sum(axis=1)
-        out[:, 3:] = (ng.reshape(n, m, 3) * wq).sum(axis=1)
+        na, ng = na.reshape(n, m, 3), ng.reshape(n, m, 3)
+        out = np.zeros((n, 6))
+        for j in range(m):  # Gauss-Legendre sum written out: the same operations for every chunk size
+            out[:, :3] += (self.w_nodes[j] * dt) * na[:, j, :]
+            out[:, 3:] += (self.w_nodes[j] * dt) * ng[:, j, :]
         return out
 
     def next(self, n: int) -> Chunk:

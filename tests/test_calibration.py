@@ -1,0 +1,370 @@
+"""Calibration against known truth (seed 000 Tables 1 and 3 as the synthetic unit's parameters).
+
+Static means come from the closed-form model N = K E x + b at seed 000's 24 attitudes (§2.2) plus Gaussian
+noise of known sigma; rotation pairs from the whole-revolution means of eqs. 23-24. The checks: separate LS
+and the identified norm form recover the truth within their standard errors, eq. 25 is exact on noise-free
+means, the ranks are 9 of 12 (paper's norm form) and 3 of 9 (L_gm), the z-scores over many noise seeds are
+standard normal, and bad input gives clear errors.
+"""
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from calib import calibration as cal
+from calib import earth
+from calib import identifiability as idf
+from calib import objectives as ob
+from calib import segments as sg
+from calib.recording import make_dataset
+from calib.sensors import seed000_model
+from calib.transforms import axis_angle
+
+ACC = seed000_model("accel")
+GYR = seed000_model("gyro")
+ATT = idf.seed000_attitudes()
+AXES, RATES = idf.seed000_rotation_plan()
+SIG_A = 0.5  # count s-1 per static mean (~36 micro-g)
+SIG_G = 80.0  # count s-1 (~0.01 deg/h)
+
+
+def tri9_truth(model):
+    L, _ = ob.lower_triangular_gauge(model.KE)
+    return ob.Form("tri9").from_KE_b(L, model.b)
+
+
+def accel_static(seed, sigma=SIG_A):
+    return sg.synthetic_static(ACC, ATT, sigma, np.random.default_rng(seed), sensor="accel")
+
+
+def gyro_data(seed):
+    rng = np.random.default_rng(seed)
+    st = sg.synthetic_static(GYR, ATT, SIG_G, rng, sensor="gyro")
+    pr = sg.synthetic_pairs(GYR, AXES, RATES, SIG_G, rng)
+    return st, pr
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the 24-position path itself
+# ---------------------------------------------------------------------------------------------------------
+def test_seed000_attitudes_follow_section_2_2():
+    north = np.array([0.0, 1.0, 0.0])
+    for ph in range(3):
+        for k in range(8):
+            C = ATT[8 * ph + k]
+            assert np.allclose(C @ C.T, np.eye(3)) and np.linalg.det(C) == pytest.approx(1.0)
+            assert np.allclose(C[:, ph], north)  # body axis ph points north throughout phase ph
+        # consecutive positions differ by 45 deg about that axis
+        R = ATT[8 * ph].T @ ATT[8 * ph + 1]
+        assert np.allclose(R, axis_angle(np.eye(3)[ph], math.radians(45.0)))
+    assert np.allclose(ATT[0][:, 2], [0, 0, 1]) and np.allclose(ATT[8][:, 2], [0, 0, 1])  # POS1: z up
+
+
+# ---------------------------------------------------------------------------------------------------------
+# accelerometer
+# ---------------------------------------------------------------------------------------------------------
+def test_separate_accel_recovers_truth():
+    r = cal.separate_accel(accel_static(21))
+    z = (r.x - ACC.to_vector()) / r.se
+    assert np.all(np.abs(z) < 4.0)
+    assert r.rank == 12 and r.dof == 3 * (24 - 4)
+    assert r.chi2_red == pytest.approx(1.0, abs=0.5)
+    # the calibrated model maps the outputs back to the inputs (apply), also from increments
+    st = accel_static(21, sigma=0.0)
+    x = r.apply(st.means)
+    assert np.allclose(x, st.true_inputs(), atol=1e-4)
+    dt = 0.01
+    assert np.allclose(r.apply(st.means * dt, sample_kind="increment", dt=dt), x)
+
+
+def test_norm_tri9_recovers_identified_combinations():
+    st = accel_static(22)
+    r = cal.norm_calibration(st, form="tri9", budget=(60, 400))
+    assert r.rank == 9 and r.undetermined == []
+    assert np.all(np.abs((r.x - tri9_truth(ACC)) / r.se) < 4.0)
+    g = r.derived["gram"]
+    Gt = ACC.KE @ ACC.KE.T
+    zg = np.array([g["value"][i, j] - Gt[i, j] for i, j in g["entries"]]) / np.sqrt(np.diag(g["cov"]))
+    assert np.all(np.abs(zg) < 4.0)
+    # mapped back to the paper's form with the truth as reference, K E is the truth up to the noise
+    vec, R = r.paper_form(ACC.KE)
+    assert np.allclose(R @ R.T, np.eye(3))
+    assert np.allclose(vec[3:9], ACC.to_vector()[3:9], atol=2e-4)
+    assert "triad frame" in r.frame
+
+
+def test_norm_paper12_rank_9_of_12_and_same_optimum_as_tri9():
+    st = accel_static(23)
+    r12 = cal.norm_calibration(st, form="paper12", budget=(60, 400))
+    r9 = cal.norm_calibration(st, form="tri9", budget=(60, 400))
+    assert r12.rank == 9 and len(r12.names) == 12
+    assert r12.L == pytest.approx(r9.L, rel=1e-8)  # a rotation of the triad does not change eq. 7
+    assert np.allclose(r12.derived["gram"]["value"], r9.derived["gram"]["value"], rtol=1e-9)
+    assert set(r12.undetermined) == {"Exy", "Exz", "Eyx", "Eyz", "Ezx", "Ezy"}
+    assert np.all(np.isnan(r12.se[3:9])) and np.all(np.isfinite(r12.se[[0, 1, 2, 9, 10, 11]]))
+    gens = r12.identifiability.generators_in_null
+    assert all(v > 0.999 for v in gens.values()) and len(gens) == 3
+
+
+def test_bounds_excluding_the_optimum_are_reported():
+    st = accel_static(24)
+    lo, hi = np.array([13000.0] * 3 + [-0.01] * 3 + [-400.0] * 3), np.array([14000.0] * 3 + [0.01] * 3 + [400.0] * 3)
+    lo[6] = -150.0  # bx truth -206.6 lies outside
+    with pytest.warns(UserWarning, match="bx"):
+        r = cal.norm_calibration(st, form="tri9", bounds=(lo, hi), budget=(40, 200))
+    assert r.on_bound == ["bx"]
+    assert r.x[6] == pytest.approx(-150.0, abs=1e-3)
+    assert any("widen" in n for n in r.notes)
+
+
+def test_too_few_positions_message():
+    st = sg.synthetic_static(ACC, ATT[:6], SIG_A, np.random.default_rng(0), sensor="accel")
+    with pytest.raises(sg.SegmentError, match=r"at least 10 .* found 6"):
+        cal.norm_calibration(st)
+    st4 = sg.synthetic_static(ACC, ATT[:4], SIG_A, np.random.default_rng(0), sensor="accel")
+    with pytest.raises(sg.SegmentError, match=r"at least 5 .* found 4"):
+        cal.separate_accel(st4)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# gyro
+# ---------------------------------------------------------------------------------------------------------
+def test_eq25_components_exact_on_noise_free_means():
+    st = sg.synthetic_static(GYR, ATT, SIG_G, None, sensor="gyro")
+    pr = sg.synthetic_pairs(GYR, AXES, RATES, SIG_G, None)
+    d, _ = pr.difference()
+    w = pr.delta_input()
+    # literally eq. 25: (N+ - N-) / (2 omega) is column k of K E for a rotation about body axis k
+    for j in range(pr.n):
+        k = int(np.argmax(np.abs(pr.axis[j])))
+        assert np.allclose(d[j] / w[j, k], GYR.KE[:, k], rtol=1e-12)
+    for bias_from in ("pairs", "static", "both"):
+        r = cal.gyro_components(pr, st, bias_from=bias_from)
+        assert np.allclose(r.KE, GYR.KE, rtol=1e-12, atol=0)
+        assert np.allclose(r.b, GYR.b, rtol=0, atol=1e-5)
+        assert np.allclose(r.x, GYR.to_vector(), rtol=1e-10, atol=1e-5)
+
+
+def test_gyro_components_recover_truth_with_noise():
+    st, pr = gyro_data(31)
+    r = cal.gyro_components(pr, st)
+    assert r.rank == 12
+    assert np.all(np.abs((r.x - GYR.to_vector()) / r.se) < 4.0)
+    assert "both" in r.notes[0]
+    # the bias from the static norm with K E held (seed 000 §3.3) agrees within its standard error
+    rn = cal.gyro_components(pr, st, bias_from="norm", budget=(20, 60))
+    assert np.all(np.abs((rn.b - GYR.b) / rn.se[9:]) < 4.0)
+
+
+def test_separate_gyro_joint_least_squares():
+    st, _ = gyro_data(32)
+    rng = np.random.default_rng(33)
+    # rotation means of single segments (not pairs) with their known inputs
+    rot_axes = np.repeat(np.eye(3), 2, axis=0)
+    rates = np.tile([20.0, -20.0], 3)
+    att = np.array([sg.vertical_axis_attitude(a) for a in rot_axes])
+    rm = sg.RotationMeans(sensor="gyro", means=np.zeros((6, 3)), sigma=np.full((6, 3), SIG_G), axis=rot_axes,
+                          rate_deg_s=rates, revolutions=np.ones(6), duration_s=np.full(6, 18.0),
+                          input_unit="deg h-1", output_unit="count s-1", latitude_deg=39.98, attitude=att)
+    rm.means = GYR.forward(rm.mean_inputs()) + rng.normal(size=(6, 3)) * SIG_G
+    r = cal.separate_gyro(st, rm)
+    assert np.all(np.abs((r.x - GYR.to_vector()) / r.se) < 4.0)
+
+
+def test_lgm_rank_3_of_9_and_dynamic_path():
+    st, pr = gyro_data(34)
+    rep = idf.check_plan("gyro", "lgm")
+    assert (rep.rank, rep.n_params) == (3, 9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the biases may end on a bound: they absorb the wrong installation errors
+        r = cal.gyro_dynamic(pr, st, budget=(40, 300))
+    assert r.derived["lgm_rank"] == (3, 9)
+    assert set(r.undetermined) == {"Exy", "Exz", "Eyx", "Eyz", "Ezx", "Ezy"}
+    assert any("rank 3 of 9" in n for n in r.notes)
+    # what L_gm does determine: the column norms of K E
+    assert np.allclose(np.linalg.norm(r.KE, axis=0), np.linalg.norm(GYR.KE, axis=0), rtol=1e-6)
+    # and the component form (eq. 25) gets the full matrix from the same pairs
+    assert idf.check_plan("gyro", "eq25").rank == 9
+
+
+def test_gyro_static_norm_is_the_rank_9_problem():
+    st, _ = gyro_data(35)
+    r = cal.norm_calibration(st, form="paper12", budget=(40, 200))
+    assert r.rank == 9 and r.objective.startswith("L_g")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# identifiability of planned paths
+# ---------------------------------------------------------------------------------------------------------
+def test_identifiability_of_planned_paths():
+    r = idf.check_plan("accel", "paper12")
+    assert (r.rank, r.n_params) == (9, 12)
+    text = " ".join(r.descriptions)
+    assert "rotation of the triad about body z" in text and "Exy" in text and "Eyx" in text
+    assert idf.check_plan("accel", "tri9").rank == 9
+    assert idf.check_plan("accel", "vector").rank == 12
+    # one phase only (x always horizontal): the x accelerometer's scale factor cannot be found
+    one = idf.check_plan("accel", "tri9", attitudes=ATT[:8])
+    assert one.rank < 9 and "Kx" in one.undetermined and one.suggestions
+    # diagonal rotation axes raise L_gm to rank 6 (never 9)
+    diag = np.array([[1, 1, 0], [1, 0, 1], [0, 1, 1]]) / math.sqrt(2)
+    r6 = idf.check_plan("gyro", "lgm", rotation_axes=np.vstack([AXES, diag]), rotation_rates=np.r_[RATES, 3 * [10.]])
+    assert r6.rank == 6
+
+
+# ---------------------------------------------------------------------------------------------------------
+# z-scores over noise seeds
+# ---------------------------------------------------------------------------------------------------------
+def _zscores(n_seeds, offset):
+    za, zn, zg = [], [], []
+    t9 = tri9_truth(ACC)
+    for s in range(offset, offset + n_seeds):
+        st = accel_static(s)
+        r = cal.separate_accel(st)
+        za.append((r.x - ACC.to_vector()) / r.se)
+        rn = cal.norm_calibration(st, form="tri9", method="lsq", rng=np.random.default_rng(s))
+        zn.append((rn.x - t9) / rn.se)
+        gs, pr = gyro_data(10_000 + s)
+        rg = cal.gyro_components(pr, gs)
+        zg.append((rg.x - GYR.to_vector()) / rg.se)
+    return np.array(za), np.array(zn), np.array(zg)
+
+
+def _check_z(z, mean_tol, std_lo, std_hi):
+    m, s = z.mean(axis=0), z.std(axis=0, ddof=1)
+    assert np.all(np.abs(m) < mean_tol), m
+    assert np.all((s > std_lo) & (s < std_hi)), s
+
+
+def test_zscores_are_standard_normal():
+    for z in _zscores(40, 1000):
+        _check_z(z, 0.5, 0.7, 1.3)
+
+
+@pytest.mark.slow
+def test_zscores_are_standard_normal_tight():
+    for z in _zscores(300, 5000):
+        _check_z(z, 0.3, 0.85, 1.15)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# segment means from a calib-recording-1 dataset
+# ---------------------------------------------------------------------------------------------------------
+FS = 20.0
+LAT = 39.98
+
+
+def _quantise(rate, fs):
+    """Integer count increments of a rate signal (count s-1), with carry (counts of the integral)."""
+    total = np.floor(np.cumsum(rate / fs, axis=0))
+    return np.diff(np.vstack([np.zeros((1, 3)), total]), axis=0)
+
+
+def make_recording(n_static=24, static_s=30.0, rot_rate=30.0, revs=1.5, seed=0, zero_rate=False, flat=False):
+    rng = np.random.default_rng(seed)
+    g = float(earth.normal_gravity(math.radians(LAT))) / 9.80665
+    w_ie = earth.earth_rate_enu(math.radians(LAT)) / earth.DEG_PER_H
+    acc, gyr, seg, ang = [], [], [], []
+    kinds, labels, axes, rates, atts = [], [], [], [], []
+    gap = int(FS)
+
+    def add(C_of_k, omega_b_tab, n, s):
+        k = np.arange(n) + 0.5  # mid-sample
+        f = np.empty((n, 3))
+        w = np.empty((n, 3))
+        for i, kk in enumerate(k):
+            C = C_of_k(kk)
+            f[i] = C.T @ np.array([0.0, 0.0, g])
+            w[i] = C.T @ w_ie + omega_b_tab
+        acc.append(ACC.forward(f) + rng.normal(0.0, 30.0, (n, 3)))
+        gyr.append(GYR.forward(w) + rng.normal(0.0, 2000.0, (n, 3)))
+        seg.append(np.full(n, s))
+        ang.append(np.zeros(n))
+
+    for m in range(n_static):
+        add(lambda kk, C=ATT[m]: C, np.zeros(3), int(static_s * FS), len(kinds))
+        kinds.append("static"), labels.append(f"POS{m + 1}"), axes.append(np.zeros(3)), rates.append(np.nan)
+        atts.append(ATT[m])
+        add(lambda kk, C=ATT[m]: C, np.zeros(3), gap, -1)
+    for a in np.eye(3):
+        C0 = sg.vertical_axis_attitude(a)
+        for sgn in (1.0, -1.0):
+            r = sgn * rot_rate
+            n = int(round(revs * 360.0 / abs(r) * FS))
+            add(lambda kk, C0=C0, a=a, r=r: C0 @ axis_angle(a, math.radians(r * kk / FS)), r * 3600.0 * a, n,
+                len(kinds))
+            ang[-1] = r * np.arange(n) / FS
+            kinds.append("rotation"), labels.append(f"ROT {'xyz'[int(np.argmax(a))]}{'+' if sgn > 0 else '-'}")
+            axes.append(a), rates.append(0.0 if zero_rate else r), atts.append(C0)
+            add(lambda kk, C0=C0: C0, np.zeros(3), gap, -1)
+    acc = np.concatenate(acc)
+    gyr = np.concatenate(gyr)
+    counts_a = np.zeros_like(acc) if flat else _quantise(acc, FS)
+    counts_g = _quantise(gyr, FS)
+    return make_dataset(counts_a, counts_g, sample_rate_hz=FS, latitude_deg=LAT, accel_units="count",
+                        gyro_units="count", accel_kind="increment", gyro_kind="increment",
+                        segment_index=np.concatenate(seg), table_angle=np.concatenate(ang),
+                        segments={"segment_kind": kinds, "segment_label": labels, "rotation_axis": np.array(axes),
+                                  "rotation_rate": np.array(rates), "nominal_attitude": np.array(atts)})
+
+
+@pytest.fixture(scope="module")
+def recording():
+    return make_recording()
+
+
+def test_static_means_and_sigma_from_recording(recording):
+    st = sg.static_means(recording, "accel")
+    assert st.n == 24 and st.output_unit == "count s-1" and st.input_unit == "g"
+    assert st.reference == pytest.approx(float(earth.normal_gravity(math.radians(LAT))) / 9.80665)
+    truth = ACC.forward(st.true_inputs())
+    z = (st.means - truth) / st.sigma
+    assert np.all(np.abs(z) < 5.0)
+    # white noise 30 count s-1 per sample: sigma of a 30 s mean = 30 / sqrt(600) (+ quantisation, small)
+    assert np.allclose(st.sigma, 30.0 / math.sqrt(600), rtol=0.25)
+    assert st.noise is not None and st.noise.n_records == 24
+
+
+def test_rotation_means_whole_revolutions_and_pairs(recording):
+    rot = sg.rotation_means(recording, "gyro")
+    assert rot.n == 6
+    assert np.all(rot.revolutions == 1)
+    assert np.allclose(rot.duration_s, 360.0 / 30.0)  # one whole turn at 30 deg/s
+    truth = GYR.forward(rot.mean_inputs())
+    assert np.all(np.abs((rot.means - truth) / rot.sigma) < 5.0)
+    pr = sg.pair_rotations(rot)
+    assert pr.n == 3 and pr.unpaired == []
+    assert np.allclose(pr.rate_plus, 30.0) and np.allclose(pr.rate_minus, -30.0)
+    assert np.allclose(np.abs(pr.axis), np.eye(3))
+
+
+def test_full_chain_from_recording(recording):
+    inp = sg.extract(recording)
+    ra = cal.separate_accel(inp.accel_static)
+    assert np.all(np.abs((ra.x - ACC.to_vector()) / ra.se) < 5.0)
+    rg = cal.gyro_components(inp.gyro_pairs, inp.gyro_static)
+    assert np.all(np.abs((rg.x - GYR.to_vector()) / rg.se) < 5.0)
+
+
+def test_recording_errors():
+    with pytest.raises(sg.SegmentError, match="rotation_rate.*segment 24"):
+        sg.rotation_means(make_recording(n_static=24, zero_rate=True), "gyro")
+    with pytest.raises(sg.SegmentError, match="flat"):
+        sg.static_means(make_recording(n_static=10, flat=True), "accel")
+    with pytest.raises(sg.SegmentError, match="less than one whole revolution"):
+        sg.rotation_means(make_recording(n_static=10, revs=0.8), "gyro")
+
+
+@pytest.mark.slow
+def test_zscores_with_sigma_from_allan_on_recordings():
+    """Whole chain: quantised increments -> segment means -> sigma from the pooled Allan deviation -> fits."""
+    za, zg = [], []
+    for s in range(40):
+        inp = sg.extract(make_recording(seed=500 + s))
+        ra = cal.separate_accel(inp.accel_static)
+        za.append((ra.x - ACC.to_vector()) / ra.se)
+        rg = cal.gyro_components(inp.gyro_pairs, inp.gyro_static)
+        zg.append((rg.x - GYR.to_vector()) / rg.se)
+    for z in (np.array(za), np.array(zg)):
+        _check_z(z, 0.5, 0.7, 1.3)

@@ -1,0 +1,178 @@
+"""The calib-recording-1 format: broken files are refused with a message naming the file and the variable;
+a written recording reads back unchanged; the long-file writer never leaves a partial file behind."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from calib import recording
+from calib.ncio import write_netcdf
+
+N = 400
+FS = 100.0
+
+
+def good_dataset(seed=0) -> xr.Dataset:
+    rng = np.random.default_rng(seed)
+    acc = rng.integers(-200, 200, size=(N, 3)).astype(np.int32)
+    gyr = rng.integers(-5000, 5000, size=(N, 3)).astype(np.int32)
+    seg_idx = np.full(N, -1)
+    seg_idx[10:150] = 0
+    seg_idx[200:390] = 1
+    segments = {"segment_kind": ["static", "rotation"], "segment_label": ["P1-POS1", "ROT-z+10"],
+                "rotation_axis": np.array([[1.0, 0, 0], [0, 0, 1.0]]), "rotation_rate": np.array([0.0, 10.0]),
+                "nominal_attitude": np.array([np.eye(3), np.eye(3)])}
+    return recording.make_dataset(acc, gyr, sample_rate_hz=FS, latitude_deg=30.58, height_m=12.0,
+                                  accel_units="count", gyro_units="count", accel_kind="increment",
+                                  gyro_kind="increment", source="synthetic", sensor="test unit",
+                                  temperature=np.linspace(20, 21, N), segment_index=seg_idx, segments=segments,
+                                  table_angle=np.zeros(N))
+
+
+def refused(ds, tmp_path, variable, match):
+    """Write ``ds`` without validation, then check validate and load both refuse it."""
+    path = write_netcdf(ds, tmp_path / "bad.nc")
+    for fn in (recording.validate, recording.load):
+        with pytest.raises(recording.RecordingError, match=match) as ei:
+            fn(path)
+        assert ei.value.variable == variable
+        assert str(path) in str(ei.value) and f"variable '{variable}'" in str(ei.value)
+
+
+def test_round_trip(tmp_path):
+    ds = good_dataset()
+    path = recording.write(ds, tmp_path / "ok.nc", {"made_by_rule": "test", "seed": 3})
+    back = recording.load(path)
+    for v in ("accel", "gyro"):
+        assert back[v].dtype == np.int32
+        np.testing.assert_array_equal(back[v].values, ds[v].values)
+        assert back[v].attrs["units"] == "count" and back[v].attrs["sample_kind"] == "increment"
+    for v in ("temperature", "segment_index", "table_angle", "rotation_axis", "rotation_rate", "nominal_attitude"):
+        np.testing.assert_array_equal(back[v].values, ds[v].values)
+    assert list(back["segment_label"].values) == ["P1-POS1", "ROT-z+10"]
+    np.testing.assert_allclose(back["time"].values, np.arange(N) / FS)
+    assert back.attrs["latitude_deg"] == 30.58 and back.attrs["height_m"] == 12.0
+    assert back.attrs["made_by_rule"] == "test" and back.attrs["seed"] == 3
+    h = recording.read_header(path)
+    assert (h.n_samples, h.sample_rate_hz, h.accel_kind, h.gyro_units) == (N, FS, "increment", "count")
+
+
+def test_missing_variable(tmp_path):
+    refused(good_dataset().drop_vars("gyro"), tmp_path, "gyro", "variable missing")
+
+
+def test_unknown_units(tmp_path):
+    ds = good_dataset()
+    ds["accel"].attrs["units"] = "furlong"
+    refused(ds, tmp_path, "accel", "units='furlong' not allowed")
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_nan_inf_in_accel(tmp_path, bad):
+    ds = good_dataset()
+    acc = ds["accel"].values.astype(float)
+    acc[17, 1] = bad
+    ds["accel"] = (("time", "axis"), acc, ds["accel"].attrs)
+    refused(ds, tmp_path, "accel", "NaN or Inf at sample 17")
+
+
+def test_time_not_increasing(tmp_path):
+    ds = good_dataset()
+    t = ds["time"].values.copy()
+    t[10] = t[9]
+    ds = ds.assign_coords(time=("time", t, ds["time"].attrs))
+    refused(ds, tmp_path, "time", "not strictly increasing at sample 10")
+
+
+def test_wrong_shape_transposed(tmp_path):
+    ds = good_dataset()
+    ds["gyro"] = ds["gyro"].transpose("axis", "time")
+    refused(ds, tmp_path, "gyro", r"dimensions \('axis', 'time'\), expected \('time', 'axis'\)")
+
+
+def test_wrong_shape_two_axes(tmp_path):
+    ds = good_dataset().isel(axis=slice(0, 2))
+    refused(ds, tmp_path, "axis", "length 2, expected 3")
+
+
+def test_missing_latitude(tmp_path):
+    ds = good_dataset()
+    del ds.attrs["latitude_deg"]
+    refused(ds, tmp_path, "latitude_deg", "required global attribute missing")
+
+
+@pytest.mark.parametrize("rate", [0.0, np.nan])
+def test_rotation_segment_without_rate(tmp_path, rate):
+    ds = good_dataset()
+    rr = ds["rotation_rate"].values.copy()
+    rr[1] = rate
+    ds["rotation_rate"] = (("segment",), rr, ds["rotation_rate"].attrs)
+    refused(ds, tmp_path, "rotation_rate", "rotation segment 1 has no rate")
+
+
+def test_rotation_segments_without_rate_variable(tmp_path):
+    refused(good_dataset().drop_vars("rotation_rate"), tmp_path, "rotation_rate", "no rates")
+
+
+@pytest.mark.parametrize("keep", [0.999, 0.5, 0.05])
+def test_truncated_file(tmp_path, keep):
+    path = recording.write(good_dataset(), tmp_path / "whole.nc")
+    blob = path.read_bytes()
+    cut = tmp_path / "cut.nc"
+    cut.write_bytes(blob[:int(len(blob) * keep)])
+    assert len(cut.read_bytes()) < len(blob)
+    for fn in (recording.validate, recording.load, recording.read_header):
+        with pytest.raises(recording.RecordingError, match="truncated or not netCDF") as ei:
+            fn(cut)
+        assert str(cut) in str(ei.value)
+
+
+def _writer(path, n=1000, **kw):
+    return recording.LongRecordingWriter(path, n, FS, latitude_deg=30.58, accel_units="m s-1", gyro_units="rad",
+                                         chunk_samples=256, **kw)
+
+
+def test_long_writer_success(tmp_path):
+    path = tmp_path / "long.nc"
+    rng = np.random.default_rng(1)
+    a, g, t = rng.normal(size=(1000, 3)), rng.normal(size=(1000, 3)), rng.normal(25.0, 1.0, 1000)
+    with _writer(path, temperature=True) as w:
+        for i0 in range(0, 1000, 300):
+            w.append(a[i0:i0 + 300], g[i0:i0 + 300], t[i0:i0 + 300])
+    h = recording.validate(path)
+    assert not h.has_time and h.n_samples == 1000
+    ds = recording.load(path)
+    np.testing.assert_array_equal(ds["accel"].values, a)
+    np.testing.assert_array_equal(ds["gyro"].values, g)
+    np.testing.assert_allclose(ds["temperature"].values, t.astype(np.float32))
+    np.testing.assert_allclose(ds["time"].values, np.arange(1000) / FS)
+
+
+def _leftovers(d):
+    return sorted(p.name for p in d.iterdir())
+
+
+def test_long_writer_leaves_no_file_on_exception(tmp_path):
+    path = tmp_path / "long.nc"
+    with pytest.raises(RuntimeError, match="boom"):
+        with _writer(path) as w:
+            w.append(np.zeros((100, 3)), np.zeros((100, 3)))
+            raise RuntimeError("boom")
+    assert _leftovers(tmp_path) == []
+
+
+def test_long_writer_leaves_no_file_when_short_or_overflowing(tmp_path):
+    path = tmp_path / "long.nc"
+    with pytest.raises(ValueError, match="closed after 100 of 1000 samples"):
+        with _writer(path) as w:
+            w.append(np.zeros((100, 3)), np.zeros((100, 3)))
+    assert _leftovers(tmp_path) == []
+    with pytest.raises(ValueError, match="writer overflow"):
+        with _writer(path, n=50) as w:
+            w.append(np.zeros((100, 3)), np.zeros((100, 3)))
+    assert _leftovers(tmp_path) == []
+    with pytest.raises(ValueError, match="temperature"):
+        with _writer(path, n=10) as w:
+            w.append(np.zeros((10, 3)), np.zeros((10, 3)), np.zeros(10))  # opened without temperature
+    assert _leftovers(tmp_path) == []
