@@ -105,10 +105,10 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
             "pinned": (("test", "axis"), pinned.astype(np.int8), {"long_name": "best particle on a range bound"}),
             "truth": (("axis",), truth, {"units": "deg h-1"}),
             "crb": (("axis",), crb_deg_h, {"units": "deg h-1", "long_name": "Cramer-Rao bound, 1 sigma"}),
-            "baseline": (("method", "axis"), np.array([base[m] for m in base]), {"units": "deg h-1"}),
+            "baseline": (("estimator", "axis"), np.array([base[m] for m in base]), {"units": "deg h-1"}),
         },
         coords={"test": np.arange(1, n_tests + 1), "axis": AXES, "generation": np.arange(G + 1),
-                "method": list(base)},
+                "estimator": list(base)},
         attrs={"position_unit": dcfg["position_unit"], "weights": json.dumps(dcfg["weights"]),
                "initial_condition": cond, "window_h": dcfg["window_h"], "pso_variant": settings.variant,
                "frame": "body axes (default: along east-north-up)"},
@@ -187,7 +187,7 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
     the Kalman baseline), in one streamed pass with three streams; seed 001 Figure 4."""
     with xr.open_dataset(pso_nc, engine="netcdf4") as p:
         mean_est = p["estimate"].values.mean(0)
-        kal = p["baseline"].sel(method="kalman").values
+        kal = p["baseline"].sel(estimator="kalman").values
         crb = p["crb"].values
     truth = np.asarray(session["gyro_drift_deg_h"], float)
     h = recording.read_header(recording_path)

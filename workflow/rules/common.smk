@@ -12,12 +12,8 @@ def sub(section):
 
 def all_targets():
     t = [
-        f"{R}/calibration/tables/table2_de_variants.csv",
-        f"{R}/calibration/tables/table4_gyro_paths.csv",
-        f"{R}/calibration/tables/table5_methods.csv",
-        f"{R}/calibration/identifiability.json",
-        f"{R}/navigation/static_check.nc",
-        f"{R}/navigation/figure10_static_check.png",
+        f"{R}/data/calibration_session.nc",
+        f"{R}/data/static_check.nc",
         f"{R}/drift/table1_pso.csv",
         f"{R}/drift/validation_240h.nc",
     ]

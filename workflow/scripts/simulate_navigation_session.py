@@ -1,0 +1,6 @@
+"""Rule simulate_navigation_session: seed 001 §IV.A stationary data, written in chunks."""
+from calib import runlog, stages
+
+with runlog.to_file(snakemake.log[0]):
+    stages.simulate_navigation(snakemake.params.session, snakemake.params.site, snakemake.params.seed,
+                               snakemake.output.recording, snakemake.output.truth, rule=snakemake.rule)

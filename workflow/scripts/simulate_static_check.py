@@ -1,0 +1,7 @@
+"""Rule simulate_static_check: a static recording of the same simulated unit (seed 000 §4, Figure 10)."""
+from calib import runlog, stages
+
+with runlog.to_file(snakemake.log[0]):
+    stages.simulate_static_check(snakemake.params.check, snakemake.params.session, snakemake.params.site,
+                                 snakemake.params.seed, snakemake.output.recording, snakemake.output.truth,
+                                 rule=snakemake.rule)
