@@ -286,8 +286,9 @@ def test_two_speed_matches_single_speed_and_truth_on_turntable_1h():
 
 
 def test_two_speed_matches_single_speed_stationary_1e12():
-    """At rest the two paths differ only by rounding: attitude and position within 1e-12 rad, velocity within
-    1e-9 m/s after 1 h."""
+    """At rest the two paths differ only by rounding (N u = 3.6e5 * 1.1e-16 = 4e-11 for the 100 Hz path) and the
+    third-order nav-frame rotation residual (W T)^2 g / 12 < 5e-11 m/s^2: attitude and position within 1e-10
+    rad, velocity within 1e-9 m/s after 1 h."""
     dt, n = 0.01, 360_000
     w_b, f_b = stationary_rates()
     dth, dv = np.tile(w_b * dt, (n, 1)), np.tile(f_b * dt, (n, 1))
@@ -295,7 +296,7 @@ def test_two_speed_matches_single_speed_stationary_1e12():
     o10, _, _ = strapdown.navigate_highrate(dth, dv, dt, 10, init, out_every=100)
     o1, _, _ = strapdown.navigate_highrate(dth, dv, dt, 1, init, out_every=1000)
     d = np.abs(o10 - o1).max(0)
-    assert d[[0, 1, 2, 6, 7]].max() < 1e-12
+    assert d[[0, 1, 2, 6, 7]].max() < 1e-10
     assert d[[3, 4]].max() < 1e-9
 
 
@@ -327,14 +328,16 @@ def test_compiled_kernel_equals_reference_sample_for_sample_1e9(n_sub):
 def test_multistream_equals_single_stream_with_bias_removed():
     """Stream s with gyro compensation b_s and accel compensation a_s == a single-stream run on the 100 Hz data
     with b_s dt, a_s dt removed before pre-integration. At rest: identical up to rounding (1e-12 rad, 1e-10
-    m/s). On the turntable the shared coning/sculling terms differ by b dt x (change of dtheta) ~ 1e-16 rad per
-    step: within 1e-10 rad and 1e-8 m/s after 10 min. Also: parallel and serial give bit-identical results."""
+    m/s). On the turntable the shared coning/sculling terms miss (b dt) x (change of dtheta, dv within the
+    interval): per step at most n^2/2 |b dt| w_table g dt^2 = 9e-12 m/s (n = 10, |b| = 0.035 deg/h, 6 deg/s),
+    so over 6000 steps < 6e-8 m/s (asserted 1e-7 m/s) and attitude within 1e-10 rad. Also: parallel and
+    serial give bit-identical results."""
     dt, n, n_sub = 0.01, 60_000, 10
     gb = np.array([[0.0, 0.0, 0.0], [0.02, -0.01, 0.03], [-0.03, 0.02, 0.0]]) * DEG_H
     ab = np.array([[0.0, 0.0, 0.0], [1e-3, -2e-3, 5e-4], [0.0, 0.0, -1e-3]])
     w_b, f_b = stationary_rates()
     cases = {"rest": (np.tile(w_b * dt, (n, 1)), np.tile(f_b * dt, (n, 1)), 1e-12, 1e-10),
-             "turntable": (*turntable_increments(n, dt, AXIS, RATE), 1e-10, 1e-8)}
+             "turntable": (*turntable_increments(n, dt, AXIS, RATE), 1e-10, 1e-7)}
     init = NavInit(lat=LAT, h=H, C_bn=C0)
     for name, (dth, dv, tol_a, tol_v) in cases.items():
         Dth, Dv = strapdown.preintegrate(dth, dv, n_sub)

@@ -16,5 +16,6 @@ def all_targets():
         f"{R}/data/static_check.nc",
         f"{R}/drift/table1_pso.csv",
         f"{R}/drift/validation_240h.nc",
+        f"{R}/drift/noise_seeds.csv",
     ]
     return t

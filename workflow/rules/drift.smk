@@ -51,3 +51,26 @@ rule drift_validation:
         "../envs/calib.yaml"
     script:
         "../scripts/drift_validation.py"
+
+
+rule drift_noise_seeds:
+    output:
+        nc=f"{R}/drift/noise_seeds.nc",
+        table=report(f"{R}/drift/noise_seeds.csv", category="4 Gyro drift (seed 001)", caption="../report/noise_seeds.rst"),
+        fig=report(f"{R}/drift/noise_seeds_z.png", category="4 Gyro drift (seed 001)", caption="../report/noise_seeds.rst"),
+        metrics=f"{R}/drift/noise_seeds.metrics.json",
+    params:
+        session=sub("navigation_session"),
+        site=sub("site"),
+        drift=sub("drift"),
+        seed=config["seeds"]["data"] + 1000,
+        workdir=f"{R}/tmp/noise_seeds",
+    threads: 2
+    log:
+        f"{R}/logs/drift_noise_seeds.log",
+    benchmark:
+        f"{R}/benchmarks/drift_noise_seeds.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/drift_noise_seeds.py"

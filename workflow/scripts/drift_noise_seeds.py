@@ -1,0 +1,12 @@
+"""Rule drift_noise_seeds: the best estimators against the Cramer-Rao bound over many noise seeds."""
+import numba
+
+from calib import drift_study, runlog
+from calib.ncio import provenance
+
+numba.set_num_threads(snakemake.threads)
+p = snakemake.params
+with runlog.to_file(snakemake.log[0]):
+    o = snakemake.output
+    drift_study.run_noise_seeds(o.nc, o.table, o.fig, o.metrics, p.session, p.site, p.drift, p.drift["noise_seeds"],
+                                p.seed, p.workdir, prov=provenance(snakemake.rule, dict(p.items()), p.seed))
