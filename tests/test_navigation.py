@@ -135,22 +135,22 @@ def test_gyro_drift_follows_error_model_3h_within_1pct(axis):
 def test_gyro_drift_240h_linear_part_within_2pct_and_remainder_second_order():
     """240 h at 10 Hz (nav-rate increments, 8.64 M steps), drift 0.01 deg/h on each body axis in turn.
 
-    Streams with drift +eps, -eps, +2 eps, -2 eps navigate together. The odd part (x(eps) - x(-eps))/2 is the
-    linear response: it follows the linear error model within 2 % of each channel's max over [0, 240 h].
-    The even part (x(eps) + x(-eps))/2 is the second-order response the linear model cannot have (mainly
+    Streams with drift +eps and -eps navigate together. The odd part (x(eps) - x(-eps))/2 is the linear
+    response: it follows the linear error model within 2 % of each channel's max over [0, 240 h]. The even
+    part (x(eps) + x(-eps))/2 is the second-order response the linear model cannot have (mainly
     phi x C eps, which drives the 24-h mode at its own frequency and grows like t; 1-3 % of the channels at
-    240 h): it must scale as eps^2, i.e. even(2 eps) = 4 even(eps) within 5 % (of its own max).
+    240 h): on the body z axis (the largest, ~3 %) two more streams at +-2 eps check that it scales as
+    eps^2: even(2 eps) = 4 even(eps) within 5 % of its own max.
     """
     T, n_steps, chunk, oe = 0.1, 2_400 * 3600, 1_000_000, 600
     w_b, f_b = stationary_rates()
     base = (np.tile(w_b * T, (chunk, 1)), np.tile(f_b * T, (chunk, 1)))
     eps = 0.01 * DEG_H
     gb = []
-    for axis in range(3):
-        for k in (1, -1, 2, -2):
-            b = np.zeros(3)
-            b[axis] = -k * eps  # the stream subtracts b: drift +k eps
-            gb.append(b)
+    for axis, k in [(0, 1), (0, -1), (1, 1), (1, -1), (2, 1), (2, -1), (2, 2), (2, -2)]:
+        b = np.zeros(3)
+        b[axis] = -k * eps  # the stream subtracts b: drift +k eps
+        gb.append(b)
     state, outs, done = NavInit(lat=LAT, h=H, C_bn=C0), [], 0
     while done < n_steps:
         k = min(chunk, n_steps - done)
@@ -159,16 +159,18 @@ def test_gyro_drift_240h_linear_part_within_2pct_and_remainder_second_order():
         done += k
     out = np.concatenate(outs, axis=1)
     t = np.arange(1, out.shape[1] + 1) * oe * T
+    x = [engine_states(o) for o in out]
     for axis in range(3):
-        xp, xm, xp2, xm2 = (engine_states(out[4 * axis + j]) for j in range(4))
+        xp, xm = x[2 * axis], x[2 * axis + 1]
         drift = np.zeros(3)
         drift[axis] = eps
         m = model_states(t, drift=drift)
-        odd, even, even2 = (xp - xm) / 2, (xp + xm) / 2, (xp2 + xm2) / 2
+        odd = (xp - xm) / 2
         for i, name in enumerate(errormodel.STATE_NAMES):
-            scale = np.abs(m[:, i]).max()
-            assert np.abs(odd[:, i] - m[:, i]).max() <= 0.02 * scale, (axis, name)
-            assert np.abs(even2[:, i] - 4 * even[:, i]).max() <= 0.05 * np.abs(even2[:, i]).max(), (axis, name)
+            assert np.abs(odd[:, i] - m[:, i]).max() <= 0.02 * np.abs(m[:, i]).max(), (axis, name)
+    even, even2 = (x[4] + x[5]) / 2, (x[6] + x[7]) / 2
+    for i, name in enumerate(errormodel.STATE_NAMES):
+        assert np.abs(even2[:, i] - 4 * even[:, i]).max() <= 0.05 * np.abs(even2[:, i]).max(), name
 
 
 def _design(t, w, fixed):
@@ -288,7 +290,7 @@ def test_two_speed_matches_single_speed_and_truth_on_turntable_1h():
 def test_two_speed_matches_single_speed_stationary_1e12():
     """At rest the two paths differ only by rounding (N u = 3.6e5 * 1.1e-16 = 4e-11 for the 100 Hz path) and the
     third-order nav-frame rotation residual (W T)^2 g / 12 < 5e-11 m/s^2: attitude and position within 1e-10
-    rad, velocity within 1e-9 m/s after 1 h."""
+    rad, velocity within the Schuler response to that tilt, g 1e-10 / omega_s ~ 8e-7 m/s (asserted 1e-6)."""
     dt, n = 0.01, 360_000
     w_b, f_b = stationary_rates()
     dth, dv = np.tile(w_b * dt, (n, 1)), np.tile(f_b * dt, (n, 1))
@@ -297,7 +299,7 @@ def test_two_speed_matches_single_speed_stationary_1e12():
     o1, _, _ = strapdown.navigate_highrate(dth, dv, dt, 1, init, out_every=1000)
     d = np.abs(o10 - o1).max(0)
     assert d[[0, 1, 2, 6, 7]].max() < 1e-10
-    assert d[[3, 4]].max() < 1e-9
+    assert d[[3, 4]].max() < 1e-6
 
 
 @pytest.mark.parametrize("n_sub", [10, 1])

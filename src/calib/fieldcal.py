@@ -514,8 +514,8 @@ def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: in
     sf_std = np.sqrt(np.diag(cov)[3:6]) / gains ** 2
     cal_means = _accel_apply(p, means)
     mean_res = np.linalg.norm(cal_means, axis=1) - gravity
-    sf_units = "count per m s-2" if input_units == "count" else "1 (input in m s-2 per m s-2)"
     in_u = _input_label("accel", input_units, input_kind)
+    sf_units = _sf_units("accel", input_units, in_u)
     return TriadFit(
         sensor="accel", method="gravity_norm", names=ACCEL_NAMES, values=p, covariance=cov,
         param_units=("rad", "rad", "rad", f"m s-2 per {in_u}", f"m s-2 per {in_u}", f"m s-2 per {in_u}",
@@ -527,6 +527,11 @@ def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: in
         extra={"interval_norm_residuals": mean_res, "interval_norm_rms": float(np.sqrt(np.mean(mean_res ** 2))),
                "sigma": math.sqrt(sigma2), "n_intervals": int(len(iv)), "samples_per_interval": samples_per_interval,
                "x0": x0, "nfev": int(sol.nfev), "residuals": r, "residual_interval": which})
+
+
+def _sf_units(sensor, units, in_label):
+    out = "m s-2" if sensor == "accel" else "rad s-1"
+    return f"{in_label} per {out}" if units == "count" else f"1 (input in {out} per {out})"
 
 
 def _input_label(sensor, units, kind):
@@ -852,8 +857,7 @@ def fit_gyro_directions(gyro, accel_calibrated, intervals, dt, *, bias, g_sensit
         ((f"{in_u} per m s-2",) * 9 if g_sensitivity is not None else ()),
         matrix=M, bias=np.asarray(b, dtype=float), input_units=input_units, input_factor=float(input_factor),
         input_kind=input_kind, dt=float(sample_dt), output_units="rad s-1", scale_factors=sf,
-        scale_factor_std=sf_std, scale_factor_units=("count per rad s-1" if input_units == "count"
-                                                     else "1 (input in rad s-1 per rad s-1)"),
+        scale_factor_std=sf_std, scale_factor_units=_sf_units("gyro", input_units, in_u),
         residual_rms=float(np.sqrt(np.mean(ang ** 2))), residual_units="deg", n_residuals=int(m),
         identifiability=ident, notes=notes,
         g_sensitivity=None if g_sensitivity is None else np.asarray(g_sensitivity, dtype=float),
@@ -944,7 +948,7 @@ def fit_ferraris(accel, gyro, fs: float, statics: dict, turns: list, gravity: fl
         param_units=(f"{in_a} per m s-2",) * 9 + (in_a,) * 3, matrix=C, bias=b, input_units=accel_units,
         input_factor=float(accel_factor), input_kind=input_kind, dt=dt_s, output_units="m s-2",
         scale_factors=sf, scale_factor_std=sf_std,
-        scale_factor_units="count per m s-2" if accel_units == "count" else "1 (input in m s-2 per m s-2)",
+        scale_factor_units=_sf_units("accel", accel_units, in_a),
         residual_rms=float(np.sqrt(np.mean(r * r))), residual_units="m s-2", n_residuals=int(len(r)),
         identifiability=ident,
         notes=["six static positions cannot determine the nine-parameter norm model (6 norm equations, 9 "
@@ -981,7 +985,7 @@ def fit_ferraris(accel, gyro, fs: float, statics: dict, turns: list, gravity: fl
         param_units=(f"{in_g} per rad s-1",) * 9 + (in_g,) * 3, matrix=Cg, bias=bg, input_units=gyro_units,
         input_factor=float(gyro_factor), input_kind=input_kind, dt=dt_s, output_units="rad s-1",
         scale_factors=sfg, scale_factor_std=np.full(3, np.nan),
-        scale_factor_units="count per rad s-1" if gyro_units == "count" else "1 (input in rad s-1 per rad s-1)",
+        scale_factor_units=_sf_units("gyro", gyro_units, in_g),
         residual_rms=0.0, residual_units="deg", n_residuals=0, identifiability=None,
         notes=["three turns determine the nine entries of M_g exactly (no redundancy: no residual, no "
                "covariance); bias from the static positions; gyro g-sensitivity not modelled"],

@@ -37,9 +37,10 @@ import netCDF4
 import numpy as np
 import xarray as xr
 
-from . import earth, recording, strapdown
+from . import alignment, earth, recording, strapdown
 from .recording import RecordingError
 from .strapdown import NavInit
+from .transforms import dcm_to_euler
 
 ARCMIN = math.pi / 180.0 / 60.0
 
@@ -199,6 +200,8 @@ class StrapdownNavigator:
         return self.state.steps
 
     def feed(self, dtheta, dv) -> np.ndarray:
+        if len(dtheta) == 0:
+            return np.empty((self.n_streams, 0, strapdown.NOUT))
         if self.carry is None:
             self.carry = strapdown.new_carry(dtheta[0], dv[0])
         if self.fused:
@@ -212,10 +215,7 @@ class StrapdownNavigator:
 
     def initial_record(self) -> np.ndarray:
         i = self.init
-        C = i.cbn()
-        from .transforms import dcm_to_euler
-
-        p, r, y = dcm_to_euler(C)
+        p, r, y = dcm_to_euler(i.cbn())
         return np.array([p, r, y, i.vE, i.vN, 0.0 if self.vertical == "hold" else i.vU, i.lat, i.lon, i.h])
 
 
@@ -267,8 +267,6 @@ def errors_dataset(out, t_s, truth: NavInit, attrs=None) -> xr.Dataset:
     single = out.ndim == 2
     if single:
         out = out[None]
-    from .transforms import dcm_to_euler
-
     C = truth.cbn()
     p0, r0, y0 = (float(a) for a in dcm_to_euler(C))
     r_m, r_n = earth.radii(truth.lat)
@@ -279,7 +277,8 @@ def errors_dataset(out, t_s, truth: NavInit, attrs=None) -> xr.Dataset:
     def put(name, arr, units, long):
         v[name] = (dims, arr, {"units": units, "long_name": long})
 
-    for i, (name, long) in enumerate((("pitch", "pitch"), ("roll", "roll"), ("yaw", "yaw (ENU, from North towards West)"))):
+    angles = (("pitch", "pitch"), ("roll", "roll"), ("yaw", "yaw (ENU, from North towards West)"))
+    for i, (name, long) in enumerate(angles):
         put(name, out[..., i], "rad", f"navigated {long}")
     put("vE", out[..., 3], "m s-1", "navigated east velocity")
     put("vN", out[..., 4], "m s-1", "navigated north velocity")
@@ -300,9 +299,8 @@ def errors_dataset(out, t_s, truth: NavInit, attrs=None) -> xr.Dataset:
     put("east_err_m", (out[..., 7] - truth.lon) * (r_n + truth.h) * math.cos(truth.lat), "m", "east position error")
     for name in ("pitch_err", "roll_err", "yaw_err", "lat_err", "lon_err"):
         put(name + "_arcmin", v[name][1] / ARCMIN, "arcmin", v[name][2]["long_name"])
-    ds = xr.Dataset(v, coords={"time": ("time", np.asarray(t_s, float) / 3600.0, {"units": "h", "long_name": "time from start"}),
-                               "stream": np.arange(out.shape[0])},
-                    attrs=dict(attrs or {}))
+    time = ("time", np.asarray(t_s, float) / 3600.0, {"units": "h", "long_name": "time from start"})
+    ds = xr.Dataset(v, coords={"time": time, "stream": np.arange(out.shape[0])}, attrs=dict(attrs or {}))
     ds.attrs.update({"truth_latitude_rad": truth.lat, "truth_longitude_rad": truth.lon, "truth_height_m": truth.h,
                      "truth_pitch_rad": p0, "truth_roll_rad": r0, "truth_yaw_rad": y0,
                      "attitude_convention": "C_b^n = Rz(yaw) Rx(pitch) Ry(roll), ENU"})
@@ -322,8 +320,6 @@ def attitude_from_attrs(path, header: recording.Header):
     try:
         if "nominal_attitude" in nc.variables:
             C = np.asarray(nc.variables["nominal_attitude"][0], float)
-            from .transforms import dcm_to_euler
-
             return tuple(float(x) for x in dcm_to_euler(C))
     finally:
         nc.close()
@@ -352,8 +348,6 @@ def resolve_init(path, header: recording.Header, init, calibration=None, align_w
                                  "give init={'pitch_deg':..,'roll_deg':..,'yaw_deg':..} or init='align'")
         start = NavInit(lat=lat, lon=lon, h=h, pitch=true_att[0], roll=true_att[1], yaw=true_att[2])
     elif init == "align":
-        from . import alignment
-
         n = int(round(align_window_s * header.sample_rate_hz))
         n -= n % n_sub
         if n > header.n_samples or n < n_sub:
