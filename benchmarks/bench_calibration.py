@@ -64,10 +64,8 @@ def problem(name):
     acc, _, pairs = data()
     if name.startswith("accel"):
         form = name.split("_")[1]
-        lo, hi = seed000_bounds("accel")
-        idx = idf.form_indices(form)
         o = ob.NormObjective(acc.means, acc.reference, form=form, sigma=acc.sigma, name="L_a")
-        out = (o, (lo[idx], hi[idx]), acc.n, 9)
+        out = (o, cal._default_bounds("accel", acc.output_unit, form, None), acc.n, 9)
     else:
         lo, hi = seed000_bounds("gyro")
         d, s = pairs.difference()

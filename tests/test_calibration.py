@@ -118,6 +118,21 @@ def test_bounds_excluding_the_optimum_are_reported():
     assert any("widen" in n for n in r.notes)
 
 
+def test_weighted_fit_and_json_export():
+    import json
+
+    st = accel_static(25)
+    st.sigma[:, 2] *= 3.0  # unequal sigmas: the weighted fit is the efficient one
+    st.means[:, 2] += np.random.default_rng(26).normal(size=24) * SIG_A * math.sqrt(8.0)
+    rw = cal.norm_calibration(st, weighted=True, budget=(40, 200))
+    ru = cal.norm_calibration(st, weighted=False, budget=(40, 200))
+    assert np.all(np.abs((rw.x - tri9_truth(ACC)) / rw.se) < 4.0)
+    assert np.all(rw.se <= ru.se * 1.001)  # the weighted estimator is at least as precise
+    d = json.loads(json.dumps(rw.to_dict()))
+    assert d["frame"].startswith("triad frame") and d["rank"] == 9 and len(d["covariance"]) == 9
+    assert "(K E)^-1 (N - b)" in d["how_to_apply"]
+
+
 def test_too_few_positions_message():
     st = sg.synthetic_static(ACC, ATT[:6], SIG_A, np.random.default_rng(0), sensor="accel")
     with pytest.raises(sg.SegmentError, match=r"at least 10 .* found 6"):
@@ -345,6 +360,31 @@ def test_full_chain_from_recording(recording):
     assert np.all(np.abs((ra.x - ACC.to_vector()) / ra.se) < 5.0)
     rg = cal.gyro_components(inp.gyro_pairs, inp.gyro_static)
     assert np.all(np.abs((rg.x - GYR.to_vector()) / rg.se) < 5.0)
+
+
+def test_static_detector_hook(recording, monkeypatch):
+    """Without a segment table the static segments come from calib.detect.detect_static(accel, gyro, fs)
+    (``.intervals`` [start, stop)); replaced here by the known segments to test the hook itself."""
+    import sys
+    import types
+
+    bare = recording.drop_vars(["segment_index", "segment_kind", "segment_label", "rotation_axis", "rotation_rate",
+                                "nominal_attitude", "table_angle"])
+    si = recording["segment_index"].values
+    kinds = recording["segment_kind"].values
+    ranges = [(int(np.flatnonzero(si == s)[0]), int(np.flatnonzero(si == s)[-1]) + 1)
+              for s in range(len(kinds)) if kinds[s] == "static"]
+    fake = types.ModuleType("calib.detect")
+    fake.detect_static = lambda accel, gyro, fs: types.SimpleNamespace(intervals=np.array(ranges))
+    monkeypatch.setitem(sys.modules, "calib.detect", fake)
+    monkeypatch.setattr("calib.detect", fake, raising=False)
+    st = sg.static_means(bare, "accel")
+    assert st.n == 24 and st.attitude is None
+    assert np.allclose(st.means, sg.static_means(recording, "accel").means)
+    monkeypatch.setitem(sys.modules, "calib.detect", None)  # not installed -> clear error
+    monkeypatch.delattr("calib.detect", raising=False)
+    with pytest.raises(sg.SegmentError, match="segment table"):
+        sg.static_means(bare, "accel")
 
 
 def test_recording_errors():

@@ -51,7 +51,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import earth
 from . import identifiability as idf
 from . import objectives as ob
 from . import optimizers as opt
@@ -214,7 +213,13 @@ def _default_bounds(sensor, output_unit, form_name, bounds):
                          "are for the synthetic unit's count outputs; give bounds=(lower, upper) for this sensor")
     lo, hi = seed000_bounds(sensor)
     idx = idf.form_indices(form_name)
-    return lo[idx], hi[idx]
+    lo, hi = lo[idx].copy(), hi[idx].copy()
+    if form_name == "tri9":
+        # the lower-triangular gauge folds the rotation into Eyx, Ezx, Ezy (to first order Eyx + Exy, ...):
+        # twice the paper's installation-error range
+        lo[3:6] *= 2.0
+        hi[3:6] *= 2.0
+    return lo, hi
 
 
 def _report_bounds(names, x, lo, hi, notes, rtol=1e-4):
@@ -272,7 +277,8 @@ def separate_gyro(static: StaticMeans, rotations: RotationMeans | None = None) -
         S.append(rotations.sigma)
     N, W, S = np.concatenate(N), np.concatenate(W), np.concatenate(S)
     if N.shape[0] < 5:
-        raise SegmentError(f"separate gyro calibration needs at least 5 segments (static + rotation), found {N.shape[0]}")
+        raise SegmentError(f"separate gyro calibration needs at least 5 segments (static + rotation), "
+                           f"found {N.shape[0]}")
     M, b, cov_lin, chi2 = ob.vector_solve(N, W, S)
     notes = [] if rotations is not None else ["static positions only: Earth rate is the only input (weak)"]
     return _linear_result(static.sensor, "separate (vector LS)", M, b, cov_lin, chi2.sum(), 3 * (N.shape[0] - 4),
@@ -303,7 +309,8 @@ def norm_calibration(static: StaticMeans, *, form: str = "tri9", method: str = "
     form: 'tri9' (default; identified, rank 9), 'paper12' (the paper's form, rank 9 of 12), 'bias3' (biases
     only, ``KE`` held; seed 000 §3.3). method: any of :data:`optimizers.METHODS` (default IDE + polish).
     ``bounds``: (lower, upper) for the form's parameters or all 12 (default seed 000 Table 1 / 3, count data
-    only). ``rng`` (or ``seed``) drives the optimiser. ``weighted``: after the optimiser, re-polish with the
+    only; for tri9 the installation-error range is doubled, since the gauge folds the triad's rotation into
+    Eyx, Ezx, Ezy). ``rng`` (or ``seed``) drives the optimiser. ``weighted``: after the optimiser, re-polish with the
     residuals divided by their sigma (the BLUE-like variant; eq. 7 itself is unweighted).
     """
     needed = {"tri9": 10, "paper12": 10, "bias3": 4}[form]
@@ -448,7 +455,7 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
     d, sd = pairs.difference()
     w = pairs.delta_input()
     try:
-        M, covM = ob.eq25_solve(d, w, sd)
+        M, _ = ob.eq25_solve(d, w, sd)
     except ValueError as exc:
         raise SegmentError(str(exc)) from exc
     have_pair_att = pairs.attitude is not None

@@ -130,6 +130,8 @@ def raw_to_increments(header: recording.Header, accel, gyro, calibration=None):
             rate = raw / dt if kind == "increment" else raw
             si = calibration.apply_gyro(rate) if sensor == "gyro" else calibration.apply_accel(rate)
             out.append(np.ascontiguousarray(si * dt))
+        elif kind == "increment" and recording.unit_factor(units) == 1.0:
+            out.append(np.ascontiguousarray(raw, dtype=np.float64))  # already SI increments: no copy
         else:
             out.append(np.ascontiguousarray(recording.to_si(raw, units, kind, dt, sensor)))
     return out[0], out[1]
@@ -240,10 +242,14 @@ def euler_to_dcm_batch(pitch, roll, yaw):
     return C
 
 
-def misalignment(pitch, roll, yaw, C_true):
+def misalignment(pitch, roll, yaw, C_true, block: int = 65536):
     """phi (..., 3) [rad] with C_b^n(computed) = (I - [phi x]) C_b^n(true) (exact rotation vector of
-    C_true C_computed^T), from computed Euler angles; vectorised."""
-    Cc = euler_to_dcm_batch(np.asarray(pitch), np.asarray(roll), np.asarray(yaw))
+    C_true C_computed^T), from computed Euler angles; vectorised, in blocks along the last axis."""
+    pitch, roll, yaw = np.asarray(pitch, float), np.asarray(roll, float), np.asarray(yaw, float)
+    if pitch.ndim and pitch.shape[-1] > block:
+        return np.concatenate([misalignment(pitch[..., i:i + block], roll[..., i:i + block], yaw[..., i:i + block],
+                                            C_true, block) for i in range(0, pitch.shape[-1], block)], axis=-2)
+    Cc = euler_to_dcm_batch(pitch, roll, yaw)
     R = np.einsum("ij,...kj->...ik", np.asarray(C_true, float), Cc)
     w = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
     s = np.linalg.norm(w, axis=-1)

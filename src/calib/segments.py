@@ -239,20 +239,22 @@ def _segment_table(ds):
                   else [f"segment {i}" for i in range(len(kinds))])
         return si, kinds, labels
     try:
-        from . import detect  # written by another helper; optional
+        from . import detect  # the static detector (calib.detect); optional
     except ImportError as exc:
         raise SegmentError(f"{_where(ds)}: no segment table (segment_index / segment_kind) and no static detector "
                            "(calib.detect) available - add the segment table to the recording") from exc
-    found = detect.detect_static(ds)
+    acc, _ = rate_reading(ds, "accel")
+    gyr, _ = rate_reading(ds, "gyro")
+    try:
+        found = detect.detect_static(acc, gyr, float(ds.attrs["sample_rate_hz"]))
+    except ValueError as exc:
+        raise SegmentError(f"{_where(ds)}: no segment table, and the static detector failed: {exc}") from exc
+    found = getattr(found, "intervals", found)  # StaticDetection.intervals: (m, 2) [start, stop) indices
     n = ds.sizes["time"]
-    if isinstance(found, np.ndarray) and found.shape == (n,):
-        si = found.astype(np.int64)
-        nseg = int(si.max()) + 1 if si.size else 0
-    else:  # a list of (start, stop) sample ranges
-        si = np.full(n, -1, dtype=np.int64)
-        for k, (a, b) in enumerate(found):
-            si[int(a):int(b)] = k
-        nseg = len(found)
+    si = np.full(n, -1, dtype=np.int64)
+    for k, (a, b) in enumerate(np.asarray(found, dtype=np.int64).reshape(-1, 2)):
+        si[int(a):int(b)] = k
+    nseg = int(si.max()) + 1 if si.size else 0
     return si, ["static"] * nseg, [f"detected static {k}" for k in range(nseg)]
 
 
