@@ -216,6 +216,18 @@ def _revolution_check(ds, tol_deg):
         assert np.all(np.abs(angle - (angle @ u) * u) < tol_deg(T))
 
 
+def test_table_angle_restarts_at_zero_and_sweeps_whole_revolutions(quiet):
+    """Every rotation segment's table_angle starts at 0 deg and its last sample is one step short of
+    k x 360 deg (sample k covers [k dt, (k+1) dt)), so windows can be cut on whole revolutions."""
+    for j, sl in enumerate(seg_slices(quiet)):
+        if str(quiet["segment_kind"].values[j]) != "rotation":
+            continue
+        a = quiet["table_angle"].values[sl]
+        rate = float(quiet["rotation_rate"].values[j])
+        assert a[0] == pytest.approx(0.0, abs=1e-9)
+        assert a[-1] + rate * DT == pytest.approx(math.copysign(360.0, rate) * round(abs(a[-1]) / 360.0), abs=1e-6)
+
+
 def test_rotation_windows_integrate_to_whole_revolutions(noisy, quiet):
     _revolution_check(quiet, lambda T: 1e-6)
     nz = simulate.NOISE_DEFAULTS

@@ -402,7 +402,9 @@ class Trajectory:
         WGS-84 normal gravity at ``lat_rad``, ``height_m``).
         """
         t = np.asarray(t, dtype=float).reshape(-1)
-        idx = np.clip(np.searchsorted(self.t0, t, side="right") - 1, 0, len(self.plan) - 1)
+        # a time on a primitive boundary (to rounding of the accumulated start times) belongs to the new
+        # primitive: the kinematics are continuous there, but the table angle restarts with each segment
+        idx = np.clip(np.searchsorted(self.t0, t + 1e-9, side="right") - 1, 0, len(self.plan) - 1)
         tau = t - self.t0[idx]
         moving = (tau >= 0) & (tau <= self.dur[idx])
         tau = np.clip(tau, 0.0, self.dur[idx])
