@@ -41,7 +41,7 @@ def method_options(method: str, ccfg: dict) -> dict:
     if method == "ga":
         g = ccfg.get("ga", {})
         return {"p_crossover": g.get("crossover_prob", 0.9), "p_mutation": g.get("mutation_prob", 0.1),
-                "tournament": g.get("tournament", 2), "elite": g.get("elite", 2), "eta_c": g.get("eta_c", 15.0),
+                "tournament": g.get("tournament", 2), "n_elite": g.get("elite", 2), "eta_c": g.get("eta_c", 15.0),
                 "eta_m": g.get("eta_m", 20.0)}
     if method == "pso":
         p = ccfg.get("pso", {})

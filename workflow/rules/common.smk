@@ -12,8 +12,8 @@ def sub(section):
 
 def all_targets():
     t = [
-        f"{R}/data/calibration_session.nc",
-        f"{R}/data/static_check.nc",
+        f"{R}/calibration/tables/table5_methods.csv",
+        f"{R}/navigation/figure10_static_check.png",
         f"{R}/drift/table1_pso.csv",
         f"{R}/drift/validation_240h.nc",
         f"{R}/drift/noise_seeds.csv",

@@ -1,0 +1,33 @@
+# Calibration stage (seed 000): noise, repeated identifications per method, Tables 2, 4, 5, Figures 2-6 and 8,
+# identifiability, and the default calibration used by the navigation stage.
+
+
+rule calibrate:
+    input:
+        recording=f"{R}/data/calibration_session.nc",
+        truth=f"{R}/truth/calibration_session.truth.json",
+    output:
+        table2=report(f"{R}/calibration/tables/table2_de_variants.csv", category="2 Calibration (seed 000)", caption="../report/table2.rst"),
+        table4=report(f"{R}/calibration/tables/table4_gyro_paths.csv", category="2 Calibration (seed 000)", caption="../report/table4.rst"),
+        table5=report(f"{R}/calibration/tables/table5_methods.csv", category="2 Calibration (seed 000)", caption="../report/table5.rst"),
+        ident=f"{R}/calibration/identifiability.json",
+        default=f"{R}/calibration/default_calibration.nc",
+        default_json=f"{R}/calibration/default_calibration.json",
+        noise=f"{R}/calibration/noise.nc",
+        figs=report(directory(f"{R}/calibration/figures"), patterns=["{name}.png"], category="2 Calibration (seed 000)", caption="../report/calibration_figures.rst"),
+        runs=directory(f"{R}/calibration/runs"),
+        timings=f"{R}/calibration/timings.csv",
+        metrics=f"{R}/calibration/calibration.metrics.json",
+    params:
+        calibration=sub("calibration"),
+        seed=config["seeds"]["calibration"],
+        out=f"{R}/calibration",
+    threads: 1
+    log:
+        f"{R}/logs/calibrate.log",
+    benchmark:
+        f"{R}/benchmarks/calibrate.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/calibrate.py"

@@ -1,0 +1,12 @@
+"""Rule static_check: seed 000 Figure 10, static navigation with each method's calibration."""
+import numba
+
+from calib import navigation_study, runlog
+from calib.ncio import provenance
+
+numba.set_num_threads(snakemake.threads)
+p = snakemake.params
+with runlog.to_file(snakemake.log[0]):
+    o = snakemake.output
+    navigation_study.run_static_check(snakemake.input.recording, p.cal_dir, o.nc, o.fig, o.metrics, p.check, p.nav,
+                                      prov=provenance(snakemake.rule, dict(p.items())))
