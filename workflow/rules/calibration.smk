@@ -21,7 +21,7 @@ rule calibrate:
     params:
         calibration=sub("calibration"),
         seed=config["seeds"]["calibration"],
-        out=f"{R}/calibration",
+        out=lambda w, output: os.path.dirname(output.ident),
     threads: 1
     log:
         f"{R}/logs/calibrate.log",

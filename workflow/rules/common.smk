@@ -1,5 +1,6 @@
-# Shared helpers of the rule files: result paths and the target list.
+# Shared helpers for the per-stage files: result paths and the target list.
 import json
+import os
 
 R = config["results"]
 CAL = config["calibration"]

@@ -64,7 +64,7 @@ rule drift_noise_seeds:
         site=sub("site"),
         drift=sub("drift"),
         seed=config["seeds"]["data"] + 1000,
-        workdir=f"{R}/tmp/noise_seeds",
+        workdir=lambda w, output: os.path.join(os.path.dirname(output.nc), "tmp_noise_seeds"),
     threads: 2
     log:
         f"{R}/logs/drift_noise_seeds.log",

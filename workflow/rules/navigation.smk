@@ -13,7 +13,7 @@ rule static_check:
     params:
         check=sub("static_check"),
         nav=sub("navigation"),
-        cal_dir=f"{R}/calibration",
+        cal_dir=lambda w, input: os.path.dirname(input.default),
     threads: 2
     log:
         f"{R}/logs/static_check.log",

@@ -1,0 +1,178 @@
+"""The ``calib`` command line: the same library functions as the workflow rules, for work on single files.
+
+    calib simulate calibration OUT.nc [--config config/config.yaml] [--seed N]
+    calib simulate navigation OUT.nc [--hours H]
+    calib import SETTINGS.yaml OUT.nc
+    calib validate RECORDING.nc
+    calib calibrate RECORDING.nc --out DIR [--quick]
+    calib fieldcal RECORDING.nc [--settings S.yaml] [--out result.nc]
+    calib navigate RECORDING.nc --out errors.nc [--calibration DIR/default_calibration.nc]
+    calib diagnose RECORDING.nc --out DIR
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import yaml
+
+DEFAULT_CONFIG = "config/config.yaml"
+
+
+def _config(path):
+    p = Path(path)
+    if not p.exists():
+        raise SystemExit(f"config file {p} not found -- pass --config")
+    cfg = yaml.safe_load(p.read_text())
+    schema = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
+    if schema.exists():
+        from snakemake.utils import validate
+
+        validate(cfg, str(schema))
+    return cfg
+
+
+def cmd_simulate(a):
+    from . import stages
+
+    cfg = _config(a.config)
+    seed = cfg["seeds"]["data"] if a.seed is None else a.seed
+    truth = a.truth or str(Path(a.out).with_suffix(".truth.json"))
+    if a.kind == "calibration":
+        stages.simulate_calibration(cfg["calibration_session"], cfg["site"], seed, a.out, truth)
+    elif a.kind == "navigation":
+        s = dict(cfg["navigation_session"])
+        if a.hours:
+            s["duration_h"] = a.hours
+        stages.simulate_navigation(s, cfg["site"], seed, a.out, truth)
+    else:
+        c = dict(cfg["static_check"])
+        if a.hours:
+            c["duration_h"] = a.hours
+        stages.simulate_static_check(c, cfg["calibration_session"], cfg["site"], seed, a.out, truth)
+    print(f"wrote {a.out} (truth in {truth})")
+
+
+def cmd_import(a):
+    from . import importers
+
+    out = importers.import_recording(importers.load_settings(a.settings), a.out)
+    print(f"wrote {out}")
+
+
+def cmd_validate(a):
+    from . import recording
+
+    h = recording.validate(a.recording)
+    print(f"{a.recording}: valid calib-recording-1, {h.n_samples} samples at {h.sample_rate_hz} Hz "
+          f"({h.duration_s / 3600:.3f} h), latitude {h.latitude_deg} deg; accel {h.accel_kind} [{h.accel_units}], "
+          f"gyro {h.gyro_kind} [{h.gyro_units}]")
+
+
+def cmd_calibrate(a):
+    from . import calibration_study
+
+    cfg = _config(a.config)
+    cc = dict(cfg["calibration"])
+    if a.quick:
+        cc.update(runs=3, methods=["ide", "ide_lsq", "lsq"])
+    calibration_study.run_study(a.recording, a.truth, a.out, cc, cfg["seeds"]["calibration"])
+
+
+def cmd_fieldcal(a):
+    from . import fieldcal, importers
+    from .ncio import write_netcdf
+
+    settings = None
+    if a.settings:
+        settings = yaml.safe_load(Path(a.settings).read_text())
+        if "format" in settings:  # an import-settings file: use its optional 'fieldcal:' section
+            settings = settings.get("fieldcal")
+    res = fieldcal.fieldcal_recording(a.recording, settings)
+    print(json.dumps(res.summary(), indent=2, default=str))
+    if a.out:
+        write_netcdf(res.to_dataset(), a.out)
+
+
+def cmd_navigate(a):
+    import xarray as xr
+
+    from . import navigation
+    from .ncio import write_netcdf
+    from .sensors import TriadModel
+
+    cal = None
+    if a.calibration:
+        with xr.open_dataset(a.calibration, engine="netcdf4") as d:
+            cal = navigation.TriadCalibration(TriadModel.from_vector(d["accel"].values, "g", "count s-1"),
+                                              TriadModel.from_vector(d["gyro"].values, "deg h-1", "count s-1"))
+    init = "align" if a.align else "attrs"
+    ds = navigation.navigate_recording(a.recording, calibration=cal, init=init, nav_rate_hz=a.nav_rate,
+                                       output_interval_s=a.output_interval,
+                                       progress=lambda d, n: print(f"{100 * d / n:5.1f} %", flush=True))
+    write_netcdf(ds, a.out)
+    print(f"wrote {a.out}")
+
+
+def cmd_diagnose(a):
+    from . import diagnose
+
+    rep = diagnose.diagnose_recording(a.recording, a.out)
+    print(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="calib", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("simulate", help="synthetic sessions (data stage)")
+    s.add_argument("kind", choices=["calibration", "navigation", "static_check"])
+    s.add_argument("out")
+    s.add_argument("--config", default=DEFAULT_CONFIG)
+    s.add_argument("--seed", type=int)
+    s.add_argument("--hours", type=float)
+    s.add_argument("--truth")
+    s.set_defaults(fn=cmd_simulate)
+    s = sub.add_parser("import", help="import a real recording with a settings YAML (config/import/*.yaml)")
+    s.add_argument("settings")
+    s.add_argument("out")
+    s.set_defaults(fn=cmd_import)
+    s = sub.add_parser("validate", help="check a calib-recording-1 file")
+    s.add_argument("recording")
+    s.set_defaults(fn=cmd_validate)
+    s = sub.add_parser("calibrate", help="seed 000 calibration study on a session with a segment table")
+    s.add_argument("recording")
+    s.add_argument("--out", required=True)
+    s.add_argument("--truth")
+    s.add_argument("--config", default=DEFAULT_CONFIG)
+    s.add_argument("--quick", action="store_true", help="3 runs of IDE, IDE+polish and least squares only")
+    s.set_defaults(fn=cmd_calibrate)
+    s = sub.add_parser("fieldcal", help="calibration without a turntable record (real recordings)")
+    s.add_argument("recording")
+    s.add_argument("--settings")
+    s.add_argument("--out")
+    s.set_defaults(fn=cmd_fieldcal)
+    s = sub.add_parser("navigate", help="pure-inertial navigation of a stationary recording")
+    s.add_argument("recording")
+    s.add_argument("--out", required=True)
+    s.add_argument("--calibration", help="default_calibration.nc of the calibrate stage (count recordings)")
+    s.add_argument("--nav-rate", type=float, default=10.0)
+    s.add_argument("--output-interval", type=float, default=60.0)
+    s.add_argument("--align", action="store_true", help="self-align instead of using the recorded attitude")
+    s.set_defaults(fn=cmd_navigate)
+    s = sub.add_parser("diagnose", help="locate and name the physics a model leaves out")
+    s.add_argument("recording")
+    s.add_argument("--out", required=True)
+    s.set_defaults(fn=cmd_diagnose)
+    a = p.parse_args(argv)
+    try:
+        a.fn(a)
+    except (ValueError, FileNotFoundError) as exc:  # RecordingError and friends carry file, field and fix
+        print(f"calib {a.cmd}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
