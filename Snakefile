@@ -16,6 +16,7 @@ include: "workflow/rules/data.smk"
 include: "workflow/rules/calibration.smk"
 include: "workflow/rules/navigation.smk"
 include: "workflow/rules/drift.smk"
+include: "workflow/rules/real.smk"
 include: "workflow/rules/track.smk"
 
 

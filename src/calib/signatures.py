@@ -398,12 +398,11 @@ class NoiseFit:
     method: str = ""
 
 
-_NOISE_CANDIDATES = (("N",), ("Q", "N"), ("N", "K"), ("Q", "N", "K"))
-
-
-def fit_noise(geom: Geometry, y: dict, penalty: float = 16.0) -> NoiseFit:
-    """Allan deviation pooled over the static windows, noise model chosen per axis among white (N),
-    +quantisation (Q), +rate random walk (K) by misfit + ``penalty`` x terms (as allan.extrapolation_model)."""
+def fit_noise(geom: Geometry, y: dict) -> NoiseFit:
+    """Allan deviation pooled over the static windows and the model 3Q^2/tau^2 + N^2/tau + K^2 tau/3 fitted
+    by NNLS per axis (``allan.AllanResult.noise_model``). Q and N (quantisation and white noise, which
+    dominate every tau a static segment supports) are kept; K from the short taus is only a first guess:
+    :func:`reml_random_walk` estimates the slow part from the spread of the segment means themselves."""
     res, Q, N, K, terms = {}, {}, {}, {}, {}
     for s in SENSORS:
         recs = [y[s][w.i0:w.i1] for w in geom.static]
@@ -412,21 +411,71 @@ def fit_noise(geom: Geometry, y: dict, penalty: float = 16.0) -> NoiseFit:
         except allan.AllanError as exc:
             raise DiagnosisInputError(f"{geom.source}: no noise estimate for '{s}' ({exc})",
                                       "the static segments must hold varying samples (not flat data)") from exc
-        fits = [A.noise_model(c) for c in _NOISE_CANDIDATES]
-        crit = np.array([A.misfit(f) + penalty * len(c) for f, c in zip(fits, _NOISE_CANDIDATES)])
-        best = np.argmin(crit, axis=0)
-        Q[s] = np.array([fits[best[a]].Q[a] for a in range(3)])
-        N[s] = np.array([fits[best[a]].N[a] for a in range(3)])
-        K[s] = np.array([fits[best[a]].K[a] for a in range(3)])
-        terms[s] = [_NOISE_CANDIDATES[best[a]] for a in range(3)]
+        m = A.noise_model(("Q", "N", "K"))
+        Q[s], N[s], K[s] = m.Q.copy(), m.N.copy(), m.K.copy()
+        terms[s] = [("Q", "N", "K")] * 3
         if np.any(~(N[s] > 0)):
             raise DiagnosisInputError(f"{geom.source}: '{s}' white-noise level is zero (flat data?)",
                                       "check the channel; a noise-free channel gives no chi-square")
         res[s] = A
     return NoiseFit(res, Q, N, K, terms, method=(
-        "Allan deviation pooled over the static segments; model 3Q^2/tau^2 + N^2/tau + K^2 tau/3 (terms chosen by "
-        "penalised fit); window covariance: white + quantisation within a window, random walk (K) across the "
-        "whole session (Brownian covariance)"))
+        "quantisation Q and white noise N from the Allan deviation pooled over the static segments "
+        "(model 3Q^2/tau^2 + N^2/tau + K^2 tau/3, NNLS); the rate random walk K of the window means by "
+        "restricted maximum likelihood from the base-model residuals (the static segments are too short to see "
+        "it); covariance of the window means: white + quantisation within a window, Brownian (K) across the "
+        "session"))
+
+
+def reml_random_walk(geom: Geometry, noise: NoiseFit, y, X, parts, *, k_grid=None):
+    """Restricted-ML estimate of the random-walk level K per (sensor, axis) block from the base-model fit
+    of that block alone (columns of X used by the block), with Q and N fixed. Updates ``noise.K`` in place
+    and returns {(sensor, axis): K}."""
+    out = {}
+    for si, s in enumerate(SENSORS):
+        AN, AQ, AK = parts[s]
+        for a in range(3):
+            idx = geom.obs["blocks"][(si, a)]
+            Xb = X[idx]
+            Xb = Xb[:, np.any(Xb != 0, axis=0)]
+            yb = y[idx]
+            C0 = noise.N[s][a] ** 2 * AN + noise.Q[s][a] ** 2 * AQ
+            scale = float(np.mean(np.diag(C0)) / max(np.mean(np.diag(AK)), 1e-300))
+
+            def nll(k2):
+                C = C0 + k2 * AK
+                try:
+                    L = np.linalg.cholesky(C)
+                except np.linalg.LinAlgError:
+                    return np.inf
+                Xw = np.linalg.solve(L, Xb)
+                yw = np.linalg.solve(L, yb)
+                q, rr = np.linalg.qr(Xw)
+                r = yw - q @ (q.T @ yw)
+                return (2.0 * np.sum(np.log(np.diag(L))) + 2.0 * np.sum(np.log(np.abs(np.diag(rr))))
+                        + float(r @ r))
+
+            grid = np.concatenate([[0.0], scale * np.logspace(-4, 2, 49)]) if k_grid is None else k_grid
+            vals = np.array([nll(g) for g in grid])
+            j = int(np.argmin(vals))
+            best = grid[j]
+            if 0 < j < len(grid) - 1:  # golden refinement in log space
+                lo, hi = np.log(grid[j - 1]) if grid[j - 1] > 0 else np.log(grid[j]) - 2.0, np.log(grid[j + 1])
+                g = (math.sqrt(5.0) - 1.0) / 2.0
+                c, d = hi - g * (hi - lo), lo + g * (hi - lo)
+                fc, fd = nll(math.exp(c)), nll(math.exp(d))
+                for _ in range(30):
+                    if fc < fd:
+                        hi, d, fd = d, c, fc
+                        c = hi - g * (hi - lo)
+                        fc = nll(math.exp(c))
+                    else:
+                        lo, c, fc = c, d, fd
+                        d = lo + g * (hi - lo)
+                        fd = nll(math.exp(d))
+                best = math.exp(0.5 * (lo + hi)) if min(fc, fd) <= vals[j] else best
+            noise.K[s][a] = math.sqrt(best)
+            out[(s, a)] = noise.K[s][a]
+    return out
 
 
 def covariance_parts(geom: Geometry, sensor: str):
@@ -498,12 +547,14 @@ def site_vectors(geom: Geometry, latitude_deg=None, gravity_m_s2=None):
     return ga, wg
 
 
-def window_inputs(geom: Geometry, w: Window, delta_s: float = 0.0, latitude_deg=None, gravity_m_s2=None):
+def window_inputs(geom: Geometry, w: Window, delta_s: float = 0.0, latitude_deg=None, gravity_m_s2=None,
+                  idx=None, need_accel=True):
     """Per-sample true inputs over a window (model input units): f (n,3), omega_ib (n,3), table rate
     omega_nb [rad/s] (n,3), angular acceleration [rad/s^2] (n,3). ``delta_s``: clock offset (the sample at t
-    measures the motion at t + delta)."""
+    measures the motion at t + delta). ``idx``: window-relative sample indices to evaluate (default all)."""
     ga, wg = site_vectors(geom, latitude_deg, gravity_m_s2)
-    n = w.n
+    k = np.arange(w.n) if idx is None else np.asarray(idx)
+    n = k.size
     if w.kind == "static" or w.attitude is None:
         C = w.attitude if w.attitude is not None else np.eye(3)
         f = np.broadcast_to(C.T @ ga, (n, 3))
@@ -513,14 +564,14 @@ def window_inputs(geom: Geometry, w: Window, delta_s: float = 0.0, latitude_deg=
     u, C0 = w.axis, w.attitude
     gyro_unit = _TO_MODEL[geom.units_in["gyro"]]
     if w.spline is not None:
-        tk = np.arange(n) * geom.dt + delta_s
+        tk = k * geom.dt + delta_s
         th0 = w.spline(tk)
         th1 = w.spline(tk + geom.dt)
         thm = w.spline(tk + 0.5 * geom.dt)
         rate = (th1 - th0) / geom.dt                      # rad/s, sample average
-        acc = w.spline(tk + 0.5 * geom.dt, 2)
+        acc = w.spline(tk + 0.5 * geom.dt, 2) if need_accel else np.zeros(n)
     else:
-        thm = w.theta_mid
+        thm = w.theta_mid[k]
         rate = np.full(n, math.radians(w.rate_deg_s))
         acc = np.zeros(n)
     f = _rodrigues_T(u, thm, C0.T @ ga)
@@ -532,17 +583,24 @@ def reduced_inputs(geom: Geometry, delta_s=0.0, latitude_deg=None, gravity_m_s2=
     """Reduced inputs per sensor: list per window of (rows, 3) [model input units], and the bias rows
     (rows,) = W^T 1."""
     xa, xg, one_a, one_g = [], [], [], []
+    ga, wg = site_vectors(geom, latitude_deg, gravity_m_s2)
     for w in geom.windows:
+        ra, rg = _rows_of("accel", w), _rows_of("gyro", w)
+        sa, sg_ = w.W[:, :ra].sum(axis=0), w.W[:, :rg].sum(axis=0)
+        one_a.append(sa)
+        one_g.append(sg_)
         if only_rotation and w.kind != "rotation":
             xa.append(None)
             xg.append(None)
             continue
-        f, om, _, _ = window_inputs(geom, w, delta_s, latitude_deg, gravity_m_s2)
-        ra, rg = _rows_of("accel", w), _rows_of("gyro", w)
+        if w.kind == "static" or w.attitude is None:
+            C = w.attitude if w.attitude is not None else np.eye(3)
+            xa.append(sa[:, None] * (C.T @ ga)[None, :])
+            xg.append(sg_[:, None] * (C.T @ wg)[None, :])
+            continue
+        f, om, _, _ = window_inputs(geom, w, delta_s, latitude_deg, gravity_m_s2, need_accel=False)
         xa.append(w.W[:, :ra].T @ f)
         xg.append(w.W[:, :rg].T @ om)
-        one_a.append(w.W[:, :ra].sum(axis=0))
-        one_g.append(w.W[:, :rg].sum(axis=0))
     return {"accel": xa, "gyro": xg}, {"accel": one_a, "gyro": one_g}
 
 
@@ -596,7 +654,12 @@ class Candidate:
 
 @dataclass
 class SampleContext:
-    """Clean inputs at every window sample (registry units: g, deg/h), concatenated over windows."""
+    """Clean inputs at the evaluation nodes of every window (registry units: g, deg/h), concatenated.
+
+    Static windows are evaluated at <= 64 evenly spread samples, rotation windows at one sample per <= 0.5 deg
+    of table angle; ``Wsub[j]`` are the window's reduction weights at its nodes, rescaled so that they sum
+    like the full weights (a rectangle rule: the effect terms are smooth in time and periodic in the angle).
+    """
 
     t: np.ndarray
     f: np.ndarray
@@ -605,26 +668,38 @@ class SampleContext:
     dw_nb: np.ndarray
     temperature: np.ndarray | None
     slices: list
+    Wsub: list
+
+
+def _nodes(geom: Geometry, w: Window):
+    if w.kind == "static":
+        m = min(w.n, 64)
+        return ((np.arange(m) + 0.5) * w.n / m).astype(int)
+    step = abs(w.rate_deg_s) * geom.dt
+    stride = max(1, int(0.5 / step)) if step > 0 else 1
+    return np.arange(stride // 2, w.n, stride)
 
 
 def sample_context(geom: Geometry) -> SampleContext:
-    ts, fs_, ws_, wnb, dwnb, temps, slices = [], [], [], [], [], [], []
+    ts, fs_, ws_, wnb, dwnb, temps, slices, Wsub = [], [], [], [], [], [], [], []
     pos = 0
     ca = _TO_MODEL[geom.units_in["accel"]]
     cg = _TO_MODEL[geom.units_in["gyro"]]
     for w in geom.windows:
-        f, om, r, a = window_inputs(geom, w)
-        ts.append(geom.time_s[w.i0:w.i1] + 0.5 * geom.dt)
+        idx = _nodes(geom, w)
+        f, om, r, a = window_inputs(geom, w, idx=idx)
+        ts.append(geom.time_s[w.i0 + idx] + 0.5 * geom.dt)
         fs_.append(np.asarray(f) / ca)
         ws_.append(np.asarray(om) / cg)
         wnb.append(r)
         dwnb.append(a)
         if geom.temperature is not None:
-            temps.append(geom.temperature[w.i0:w.i1])
-        slices.append(slice(pos, pos + w.n))
-        pos += w.n
+            temps.append(geom.temperature[w.i0 + idx])
+        slices.append(slice(pos, pos + idx.size))
+        Wsub.append(w.W[idx] * (w.n / idx.size))
+        pos += idx.size
     return SampleContext(np.concatenate(ts), np.concatenate(fs_), np.concatenate(ws_), np.concatenate(wnb),
-                         np.concatenate(dwnb), np.concatenate(temps) if temps else None, slices)
+                         np.concatenate(dwnb), np.concatenate(temps) if temps else None, slices, Wsub)
 
 
 def _reduce_term(geom: Geometry, ctx: SampleContext, d, sensor: str, Kdiag, conv) -> np.ndarray:
@@ -633,7 +708,7 @@ def _reduce_term(geom: Geometry, ctx: SampleContext, d, sensor: str, Kdiag, conv
     out = np.zeros(geom.obs["n"])
     si = SENSORS.index(sensor)
     dd = d * (Kdiag * conv)[None, :]
-    red = [w.W[:, :_rows_of(sensor, w)].T @ dd[ctx.slices[j]] for j, w in enumerate(geom.windows)]
+    red = [ctx.Wsub[j][:, :_rows_of(sensor, w)].T @ dd[ctx.slices[j]] for j, w in enumerate(geom.windows)]
     vec = np.concatenate([np.concatenate([r[:, a] for r in red]) for a in range(3)])
     blk = np.concatenate([geom.obs["blocks"][(si, a)] for a in range(3)])
     out[blk] = vec
@@ -689,7 +764,7 @@ EXPERIMENTS = {
 }
 
 
-def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, offset_grid_step=0.005) -> list:
+def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, offset_grid_step=0.0125) -> list:
     """All candidates with their signature columns at the base solution ``M[s]`` (3x3 = K E), ``b[s]``."""
     ctx = sample_context(geom)
     cands: list[Candidate] = []

@@ -11,7 +11,16 @@ def sub(section):
     return json.loads(json.dumps(config[section]))
 
 
+def import_settings():
+    """Importer settings of a real-recording study (data_dir resolved against the settings file)."""
+    from calib import importers
+
+    return importers.load_settings(config["recording"]["import"])
+
+
 def all_targets():
+    if config.get("recording"):
+        return [f"{R}/calibration/fieldcal.json"]
     t = [
         f"{R}/calibration/tables/table5_methods.csv",
         f"{R}/navigation/figure10_static_check.png",

@@ -1,0 +1,37 @@
+# Real recordings: import -> static detection -> calibration without a turntable record (a study config with a
+# `recording:` section; see config/real/*.yaml). The rules read only `recording` and `results`.
+
+
+rule import_recording:
+    input:
+        settings=lambda w: config["recording"]["import"],
+    output:
+        recording=f"{R}/data/recording.nc",
+    params:
+        settings=lambda w: import_settings(),
+    log:
+        f"{R}/logs/import_recording.log",
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/import_recording.py"
+
+
+rule fieldcal:
+    input:
+        recording=f"{R}/data/recording.nc",
+    output:
+        result=f"{R}/calibration/fieldcal.nc",
+        summary=f"{R}/calibration/fieldcal.json",
+        fig=report(f"{R}/calibration/static_detection.png", category="5 Real recordings", caption="../report/detection.rst"),
+        metrics=f"{R}/calibration/fieldcal.metrics.json",
+    params:
+        settings=lambda w: config["recording"].get("fieldcal", {}),
+    log:
+        f"{R}/logs/fieldcal.log",
+    benchmark:
+        f"{R}/benchmarks/fieldcal.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/fieldcal.py"

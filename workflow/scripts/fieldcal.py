@@ -1,0 +1,8 @@
+"""Rule fieldcal: calibration without a turntable record (gravity norm + gyro-integrated gravity direction)."""
+from calib import realdata, runlog
+from calib.ncio import provenance
+
+with runlog.to_file(snakemake.log[0]):
+    o = snakemake.output
+    realdata.calibrate(snakemake.input.recording, snakemake.params.settings, o.result, o.summary, o.fig, o.metrics,
+                       prov=provenance(snakemake.rule, snakemake.params.settings))

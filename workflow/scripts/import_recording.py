@@ -1,0 +1,8 @@
+"""Rule import_recording: a real recording to calib-recording-1 (units declared in the settings)."""
+from calib import importers, runlog
+from calib.ncio import provenance
+
+with runlog.to_file(snakemake.log[0]):
+    s = snakemake.params.settings
+    importers.import_recording(s, snakemake.output.recording, prov=provenance(snakemake.rule, s))
+    print(f"imported {s.get('sensor', '')} -> {snakemake.output.recording}")
