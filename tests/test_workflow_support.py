@@ -55,7 +55,7 @@ def test_multistream_navigation_independent_of_thread_count():
 
 
 def test_calibration_study_rerun_is_identical(tmp_path):
-    """The same config gives xarray-identical netCDF and byte-identical figures."""
+    """The same config gives xarray-identical netCDF and byte-identical figures, with 1 or 2 workers."""
     from calib import calibration_study, stages
 
     cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
@@ -64,8 +64,9 @@ def test_calibration_study_rerun_is_identical(tmp_path):
     rec = tmp_path / "s.nc"
     stages.simulate_calibration(s, cfg["site"], 7, rec, tmp_path / "s.truth.json")
     cc = dict(cfg["calibration"], runs=2, NP=20, EG=20, methods=["ide", "ide_lsq"])
-    for k in ("a", "b"):
-        calibration_study.run_study(rec, tmp_path / "s.truth.json", tmp_path / k, cc, 11, prov={"seed": 11})
+    for k, workers in (("a", 1), ("b", 2)):  # and whatever the number of worker processes
+        calibration_study.run_study(rec, tmp_path / "s.truth.json", tmp_path / k, cc, 11, prov={"seed": 11},
+                                    workers=workers)
     for p in sorted((tmp_path / "a").rglob("*")):
         q = tmp_path / "b" / p.relative_to(tmp_path / "a")
         if p.suffix == ".nc":

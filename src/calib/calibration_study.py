@@ -83,7 +83,56 @@ def _run_dataset(results, L, hist, x, names, sensor, method, objective, truth=No
     return ds
 
 
-def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=None, log=print):
+def _problem(inp, key, method, rng, budget, opts):
+    """One identification: 'accel' (paper's 12-parameter norm, eq. 7), 'gyro_static' (L_g, eq. 7) or
+    'gyro_dynamic' (L_gm of eq. 26, then the biases by eq. 7 with K, E held; seed 000 §3.3)."""
+    if key == "accel":
+        return cal.norm_calibration(inp.accel_static, form="paper12", method=method, rng=rng, budget=budget, **opts)
+    if key == "gyro_static":
+        return cal.norm_calibration(inp.gyro_static, form="paper12", method=method, rng=rng, budget=budget, **opts)
+    return cal.gyro_dynamic(inp.gyro_pairs, inp.gyro_static, method=method, rng=rng, budget=budget, **opts)
+
+
+_WORKER = {}
+
+
+def _task(args):
+    key, m, seed0 = args
+    inp, ccfg = _WORKER["inp"], _WORKER["ccfg"]
+    import warnings
+
+    t = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # bound hits are reported in the runs files and tables
+        res = _runs(lambda method, rng, budget, opts: _problem(inp, key, method, rng, budget, opts), m, ccfg, seed0)
+    for r in res:  # keep what the products need; optimiser populations stay in the worker
+        if r.optimizer is not None:
+            r.optimizer.population = None
+            r.optimizer.population_fun = None
+    return res, time.perf_counter() - t
+
+
+def _map_tasks(inp, ccfg, tasks, workers, progress):
+    """Run the (problem, method) blocks, in ``workers`` processes (fork) when > 1. Each block is seeded by
+    itself, so the result does not depend on the number of workers."""
+    _WORKER.update(inp=inp, ccfg=ccfg)
+    if workers <= 1:
+        out = []
+        for t in tasks:
+            out.append(_task(t))
+            progress()
+        return out
+    import multiprocessing as mp
+
+    with mp.get_context("fork").Pool(workers) as pool:
+        out = []
+        for r in pool.imap(_task, tasks):
+            out.append(r)
+            progress()
+    return out
+
+
+def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=None, log=print, workers: int = 1):
     """The whole seed-000 calibration study on one session. Writes into ``out_dir``:
 
     ``noise.nc`` + ``allan.png``; ``runs/{sensor}_{method}.nc``; ``tables/table2_de_variants.csv``,
@@ -108,36 +157,21 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     methods = list(ccfg["methods"])
     EG = ccfg["EG"]
     runs = {}
-    bar = Progress(len(methods) * ccfg["runs"] * 3, "identifications")
+    bar = Progress(len(methods) * 3, "method x problem blocks")
 
-    # ---- accelerometers, the paper's 12-parameter form (reproduction) ----
-    def acc_problem(method, rng, budget, opts):
-        return cal.norm_calibration(inp.accel_static, form="paper12", method=method, rng=rng, budget=budget, **opts)
-
-    # ---- gyro, static path (L_g, eq. 7) and dynamic path (L_gm eq. 26, then biases) ----
-    def gyro_static_problem(method, rng, budget, opts):
-        return cal.norm_calibration(inp.gyro_static, form="paper12", method=method, rng=rng, budget=budget, **opts)
-
-    def gyro_dynamic_problem(method, rng, budget, opts):
-        return cal.gyro_dynamic(inp.gyro_pairs, inp.gyro_static, method=method, rng=rng, budget=budget, **opts)
-
-    problems = {"accel": acc_problem, "gyro_static": gyro_static_problem}
-    if inp.gyro_pairs is not None:
-        problems["gyro_dynamic"] = gyro_dynamic_problem
-    for key, problem in problems.items():
-        for i, m in enumerate(methods):
-            t = time.perf_counter()
-            res = _runs(problem, m, ccfg, seed + 1000 * i, bar)
-            timing[f"{key}_{m}_s"] = time.perf_counter() - t
-            L = np.array([r.L for r in res])
-            hist = np.array([_history(r.optimizer, EG) for r in res])
-            if key == "gyro_dynamic":  # the history of eq. 26 is in the optimiser of the first step
-                pass
-            x = np.array([r.paper_vector() for r in res])
-            sensor = "accel" if key == "accel" else "gyro"
-            rds = _run_dataset(res, L, hist, x, PARAM_NAMES, sensor, m, res[0].objective, true_vec[sensor])
-            write_netcdf(rds, out / "runs" / f"{key}_{m}.nc", prov)
-            runs[(key, m)] = (res, L, hist)
+    keys = ["accel", "gyro_static"] + (["gyro_dynamic"] if inp.gyro_pairs is not None else [])
+    tasks = [(key, m, seed + 1000 * i) for key in keys for i, m in enumerate(methods)]
+    results = _map_tasks(inp, ccfg, tasks, workers, bar)
+    for (key, m, _), (res, dt) in zip(tasks, results):
+        timing[f"{key}_{m}_s"] = dt
+        L = np.array([r.L for r in res])
+        hist = np.array([_history(r.optimizer, EG) for r in res])
+        x = np.array([r.paper_vector() for r in res])
+        sensor = "accel" if key == "accel" else "gyro"
+        rds = _run_dataset(res, L, hist, x, PARAM_NAMES, sensor, m, res[0].objective, true_vec[sensor])
+        write_netcdf(rds, out / "runs" / f"{key}_{m}.nc", prov)
+        runs[(key, m)] = (res, L, hist)
+    problems = {k: (lambda method, rng, budget, opts, k=k: _problem(inp, k, method, rng, budget, opts)) for k in keys}
 
     # ---- the best-known optimum: multi-start least squares ----
     best = {}

@@ -88,8 +88,9 @@ class Problem:
     X0: np.ndarray                # base design at zero clock offset (n, 24)
     lib: list                     # candidates
     readings: dict                # per-sample rate readings per sensor
-    n_noise_params: int = 6       # noise parameters estimated from the residuals (REML K per block)
+    n_noise_params: int = 12      # noise parameters estimated from the residuals (Tc, sigma per block)
     settings: dict = field(default_factory=dict)
+    cache: dict = field(default_factory=dict)   # slow-noise structures per (sensor, Tc)
 
     @property
     def n(self) -> int:
@@ -187,9 +188,10 @@ def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
         parts = {s: sg.covariance_parts(geom, s) for s in SENSORS}
         xr, ones = sg.reduced_inputs(geom)
         X0 = sg.base_design(geom, xr, ones)
-    sg.reml_random_walk(geom, noise, y, X0, parts)
-    _, L = sg.covariance_blocks(geom, noise, parts)
-    prob = Problem(geom, y, noise, parts, L, X0, [], readings, settings=st)
+    cache = library_from.cache if library_from is not None else {}
+    sg.reml_slow(geom, noise, y, X0, parts, cache)
+    _, L = sg.covariance_blocks(geom, noise, parts, cache)
+    prob = Problem(geom, y, noise, parts, L, X0, [], readings, settings=st, cache=cache)
     if library_from is not None:
         prob.lib = library_from.lib
     else:

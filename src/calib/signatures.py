@@ -56,6 +56,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import linalg
 from scipy.interpolate import CubicSpline
 
 from . import allan, earth, effects
@@ -388,22 +389,35 @@ def reduce_data(geom: Geometry, ds) -> tuple[np.ndarray, dict]:
 # =====================================================================================================
 @dataclass
 class NoiseFit:
-    """Per sensor: Allan result and the chosen model terms per axis (arrays (3,) in the output unit)."""
+    """Noise model per sensor: Allan result, quantisation Q and white N per axis (output unit), and the slow
+    part per axis: ``slow[s][a] = (Tc, sigma)`` -- a Gauss-Markov bias of correlation time Tc [s] and
+    standard deviation sigma (Tc = inf: a random walk with K = sigma [unit s^-1/2]); sigma = 0: none."""
 
-    allan: dict          # sensor -> AllanResult
+    allan: dict
     Q: dict
     N: dict
-    K: dict
-    terms: dict          # sensor -> list per axis of the chosen term tuples
+    slow: dict
     method: str = ""
+
+    def describe(self, sensor, a) -> str:
+        tc, sig = self.slow[sensor][a]
+        if sig <= 0:
+            return "no slow component"
+        if math.isinf(tc):
+            return f"random walk K = {sig:.4g} {self.allan[sensor].unit} s^-1/2"
+        return f"Gauss-Markov bias sigma = {sig:.4g} {self.allan[sensor].unit}, Tc = {tc:g} s"
+
+
+#: correlation times tried for the slow part of the noise [s] (inf = random walk)
+SLOW_TCS = (30.0, 60.0, 120.0, 300.0, 600.0, 1200.0, 3000.0, 10000.0, math.inf)
 
 
 def fit_noise(geom: Geometry, y: dict) -> NoiseFit:
-    """Allan deviation pooled over the static windows and the model 3Q^2/tau^2 + N^2/tau + K^2 tau/3 fitted
-    by NNLS per axis (``allan.AllanResult.noise_model``). Q and N (quantisation and white noise, which
-    dominate every tau a static segment supports) are kept; K from the short taus is only a first guess:
-    :func:`reml_random_walk` estimates the slow part from the spread of the segment means themselves."""
-    res, Q, N, K, terms = {}, {}, {}, {}, {}
+    """Allan deviation pooled over the static windows; quantisation Q and white noise N per axis from the
+    model 3Q^2/tau^2 + N^2/tau + K^2 tau/3 fitted by NNLS (``allan.AllanResult.noise_model``). Those two
+    dominate every tau a static segment supports; the slow part (bias instability) is estimated afterwards
+    from the spread of the segment means themselves (:func:`reml_slow`)."""
+    res, Q, N, slow = {}, {}, {}, {}
     for s in SENSORS:
         recs = [y[s][w.i0:w.i1] for w in geom.static]
         try:
@@ -412,73 +426,113 @@ def fit_noise(geom: Geometry, y: dict) -> NoiseFit:
             raise DiagnosisInputError(f"{geom.source}: no noise estimate for '{s}' ({exc})",
                                       "the static segments must hold varying samples (not flat data)") from exc
         m = A.noise_model(("Q", "N", "K"))
-        Q[s], N[s], K[s] = m.Q.copy(), m.N.copy(), m.K.copy()
-        terms[s] = [("Q", "N", "K")] * 3
+        Q[s], N[s] = m.Q.copy(), m.N.copy()
+        slow[s] = [(math.inf, float(m.K[a])) for a in range(3)]
         if np.any(~(N[s] > 0)):
             raise DiagnosisInputError(f"{geom.source}: '{s}' white-noise level is zero (flat data?)",
                                       "check the channel; a noise-free channel gives no chi-square")
         res[s] = A
-    return NoiseFit(res, Q, N, K, terms, method=(
-        "quantisation Q and white noise N from the Allan deviation pooled over the static segments "
-        "(model 3Q^2/tau^2 + N^2/tau + K^2 tau/3, NNLS); the rate random walk K of the window means by "
-        "restricted maximum likelihood from the base-model residuals (the static segments are too short to see "
-        "it); covariance of the window means: white + quantisation within a window, Brownian (K) across the "
-        "session"))
+    return NoiseFit(res, Q, N, slow, method=(
+        "white noise N and quantisation Q from the Allan deviation pooled over the static segments (model "
+        "3Q^2/tau^2 + N^2/tau + K^2 tau/3, NNLS); the slow part of the window means (bias instability: a "
+        "Gauss-Markov bias, correlation time profiled on a grid, or a random walk) by restricted maximum "
+        "likelihood from the base-model residuals, once, before any term is tested"))
 
 
-def reml_random_walk(geom: Geometry, noise: NoiseFit, y, X, parts, *, k_grid=None):
-    """Restricted-ML estimate of the random-walk level K per (sensor, axis) block from the base-model fit
-    of that block alone (columns of X used by the block), with Q and N fixed. Updates ``noise.K`` in place
-    and returns {(sensor, axis): K}."""
+def gm_part(geom: Geometry, sensor: str, tc: float):
+    """Covariance structure (unit variance) of a Gauss-Markov bias of correlation time ``tc`` over one axis'
+    observations: exact for the window means (closed form of the double integral of exp(-|s-t|/tc)), its
+    high-frequency (random-walk, K^2 = 2/tc) equivalent for the harmonic rows within their window."""
+    ws = geom.windows
+    rows = [_rows_of(sensor, w) for w in ws]
+    starts = np.cumsum([0] + rows)
+    m = starts[-1]
+    A = np.zeros((m, m))
+    a0 = np.array([geom.time_s[w.i0] for w in ws])
+    T = np.array([w.n * geom.dt for w in ws])
+    a1 = a0 + T
+    e = np.exp
+    for j in range(len(ws)):
+        for k in range(j, len(ws)):
+            if j == k:
+                x = T[j] / tc
+                v = 2.0 * tc**2 / T[j] ** 2 * (x - 1.0 + e(-x))
+            else:
+                (p0, p1), (q0, q1) = ((a0[j], a1[j]), (a0[k], a1[k])) if a0[j] <= a0[k] else \
+                    ((a0[k], a1[k]), (a0[j], a1[j]))
+                v = tc**2 * (e(-(q0 - p1) / tc) - e(-(q0 - p0) / tc) - e(-(q1 - p1) / tc) + e(-(q1 - p0) / tc)) / \
+                    ((p1 - p0) * (q1 - q0))
+            A[starts[j], starts[k]] = A[starts[k], starts[j]] = v
+    # harmonic rows: within-window random-walk equivalent
+    _, _, AK = covariance_parts(geom, sensor, rw_within_only=True)
+    for j in range(len(ws)):
+        if rows[j] > 1:
+            sl = slice(starts[j], starts[j] + rows[j])
+            blk = AK[sl, sl] * (2.0 / tc)
+            blk[0, 0] = A[starts[j], starts[j]]
+            A[sl, sl] = blk
+    return A
+
+
+def slow_structure(parts, geom, sensor, tc, cache=None):
+    """Unit structure of the slow part for correlation time ``tc`` (inf: random walk), cached."""
+    if math.isinf(tc):
+        return parts[sensor][2]
+    key = (sensor, tc)
+    if cache is not None and key in cache:
+        return cache[key]
+    A = gm_part(geom, sensor, tc)
+    if cache is not None:
+        cache[key] = A
+    return A
+
+
+def reml_slow(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS):
+    """Restricted-ML estimate of the slow noise per (sensor, axis) block from the base-model fit of that
+    block alone, with Q and N fixed: sigma^2 on a log grid (plus 0) for each correlation time in ``tcs``;
+    the best (Tc, sigma) is stored in ``noise.slow``. Uses C = C0 + s^2 A = L (I + s^2 V Lam V^T) L^T, so every
+    s^2 costs O(m) after one eigendecomposition per Tc."""
+    cache = {} if cache is None else cache
     out = {}
     for si, s in enumerate(SENSORS):
-        AN, AQ, AK = parts[s]
+        AN, AQ, _ = parts[s]
         for a in range(3):
             idx = geom.obs["blocks"][(si, a)]
             Xb = X[idx]
             Xb = Xb[:, np.any(Xb != 0, axis=0)]
             yb = y[idx]
             C0 = noise.N[s][a] ** 2 * AN + noise.Q[s][a] ** 2 * AQ
-            scale = float(np.mean(np.diag(C0)) / max(np.mean(np.diag(AK)), 1e-300))
-
-            def nll(k2):
-                C = C0 + k2 * AK
-                try:
-                    L = np.linalg.cholesky(C)
-                except np.linalg.LinAlgError:
-                    return np.inf
-                Xw = np.linalg.solve(L, Xb)
-                yw = np.linalg.solve(L, yb)
-                q, rr = np.linalg.qr(Xw)
-                r = yw - q @ (q.T @ yw)
-                return (2.0 * np.sum(np.log(np.diag(L))) + 2.0 * np.sum(np.log(np.abs(np.diag(rr))))
-                        + float(r @ r))
-
-            grid = np.concatenate([[0.0], scale * np.logspace(-4, 2, 49)]) if k_grid is None else k_grid
-            vals = np.array([nll(g) for g in grid])
-            j = int(np.argmin(vals))
-            best = grid[j]
-            if 0 < j < len(grid) - 1:  # golden refinement in log space
-                lo, hi = np.log(grid[j - 1]) if grid[j - 1] > 0 else np.log(grid[j]) - 2.0, np.log(grid[j + 1])
-                g = (math.sqrt(5.0) - 1.0) / 2.0
-                c, d = hi - g * (hi - lo), lo + g * (hi - lo)
-                fc, fd = nll(math.exp(c)), nll(math.exp(d))
-                for _ in range(30):
-                    if fc < fd:
-                        hi, d, fd = d, c, fc
-                        c = hi - g * (hi - lo)
-                        fc = nll(math.exp(c))
-                    else:
-                        lo, c, fc = c, d, fd
-                        d = lo + g * (hi - lo)
-                        fd = nll(math.exp(d))
-                best = math.exp(0.5 * (lo + hi)) if min(fc, fd) <= vals[j] else best
-            noise.K[s][a] = math.sqrt(best)
-            out[(s, a)] = noise.K[s][a]
+            L0 = np.linalg.cholesky(C0)
+            ld0 = 2.0 * np.sum(np.log(np.diag(L0)))
+            X1 = linalg.solve_triangular(L0, Xb, lower=True)
+            y1 = linalg.solve_triangular(L0, yb, lower=True)
+            best = (np.inf, math.inf, 0.0)
+            for tc in tcs:
+                A = slow_structure(parts, geom, s, tc, cache)
+                B = linalg.solve_triangular(L0, linalg.solve_triangular(L0, A, lower=True).T, lower=True)
+                lam, V = np.linalg.eigh(0.5 * (B + B.T))
+                lam = np.clip(lam, 0.0, None)
+                Xt, yt = V.T @ X1, V.T @ y1
+                scale = 1.0 / max(lam.max(), 1e-300)
+                s2 = np.concatenate([[0.0], scale * np.logspace(-5, 3, 81)])
+                d = 1.0 + s2[:, None] * lam[None, :]                      # (G, m)
+                w = 1.0 / d
+                XtWX = np.einsum("gm,mi,mj->gij", w, Xt, Xt)
+                XtWy = np.einsum("gm,mi,m->gi", w, Xt, yt)
+                yWy = np.einsum("gm,m->g", w, yt * yt)
+                sol = np.linalg.solve(XtWX, XtWy[..., None])[..., 0]
+                rr = yWy - np.einsum("gi,gi->g", sol, XtWy)
+                _, ldx = np.linalg.slogdet(XtWX)
+                nll = ld0 + np.sum(np.log(d), axis=1) + ldx + rr
+                j = int(np.argmin(nll))
+                if nll[j] < best[0]:
+                    best = (float(nll[j]), tc, float(math.sqrt(s2[j])))
+            noise.slow[s][a] = (best[1], best[2])
+            out[(s, a)] = noise.slow[s][a]
     return out
 
 
-def covariance_parts(geom: Geometry, sensor: str):
+def covariance_parts(geom: Geometry, sensor: str, rw_within_only: bool = False):
     """Geometry-only matrices (A_N, A_Q, A_K) over one axis' observations of ``sensor`` so that the
     covariance is ``N^2 A_N + Q^2 A_Q + K^2 A_K`` (formulas in the module docstring)."""
     dt = geom.dt
@@ -508,6 +562,8 @@ def covariance_parts(geom: Geometry, sensor: str):
         S[sl] = s_w
         I[sl] = s_w * t_first + T1.sum(axis=0) * dt
         tmid0[sl] = t_first
+    if rw_within_only:
+        return AN, AQ, AK
     # cross-window random-walk terms: Cov = K^2 S_later I_earlier
     for j, w in enumerate(ws):
         slj = slice(starts[j], starts[j] + rows[j])
@@ -522,14 +578,16 @@ def covariance_parts(geom: Geometry, sensor: str):
     return AN, AQ, AK
 
 
-def covariance_blocks(geom: Geometry, noise: NoiseFit, parts=None):
-    """Per (sensor, axis) covariance blocks of the observations and their Cholesky factors."""
-    parts = parts or {s: covariance_parts(geom, s) for s in SENSORS}
+def covariance_blocks(geom: Geometry, noise: NoiseFit, parts, cache=None):
+    """Per (sensor index, axis) covariance blocks of the observations and their Cholesky factors."""
     C, L = {}, {}
     for si, s in enumerate(SENSORS):
-        AN, AQ, AK = parts[s]
+        AN, AQ, _ = parts[s]
         for a in range(3):
-            c = noise.N[s][a] ** 2 * AN + noise.Q[s][a] ** 2 * AQ + noise.K[s][a] ** 2 * AK
+            tc, sig = noise.slow[s][a]
+            c = noise.N[s][a] ** 2 * AN + noise.Q[s][a] ** 2 * AQ
+            if sig > 0:
+                c = c + sig**2 * slow_structure(parts, geom, s, tc, cache)
             C[(si, a)] = c
             L[(si, a)] = np.linalg.cholesky(c)
     return C, L

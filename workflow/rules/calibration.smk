@@ -22,7 +22,7 @@ rule calibrate:
         calibration=sub("calibration"),
         seed=config["seeds"]["calibration"],
         out=lambda w, output: os.path.dirname(output.ident),
-    threads: 1
+    threads: 2
     log:
         f"{R}/logs/calibrate.log",
     benchmark:

@@ -20,7 +20,9 @@ def import_settings():
 
 def all_targets():
     if config.get("recording"):
-        return [f"{R}/calibration/fieldcal.json"]
+        rec = config["recording"]
+        t = [f"{R}/calibration/fieldcal.json"] if "fieldcal" in rec else []
+        return t + ([f"{R}/drift/real_drift.json"] if "drift" in rec else [])
     t = [
         f"{R}/calibration/tables/table5_methods.csv",
         f"{R}/navigation/figure10_static_check.png",

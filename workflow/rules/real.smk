@@ -35,3 +35,22 @@ rule fieldcal:
         "../envs/calib.yaml"
     script:
         "../scripts/fieldcal.py"
+
+
+rule real_drift:
+    input:
+        recording=f"{R}/data/recording.nc",
+    output:
+        result=f"{R}/drift/real_drift.json",
+        fig=report(f"{R}/drift/real_drift.png", category="5 Real recordings", caption="../report/real_drift.rst"),
+        metrics=f"{R}/drift/real_drift.metrics.json",
+    params:
+        drift=lambda w: config["recording"]["drift"],
+        seed=config["seeds"]["drift"],
+    threads: 2
+    log:
+        f"{R}/logs/real_drift.log",
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/real_drift.py"
