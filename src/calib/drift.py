@@ -160,9 +160,10 @@ def initial_error_map(condition: str, lat: float, C_bn, g: float):
     """x(0) = L theta: the initial error state (7) as a linear function of theta = [eps_body (3), nabla_body (3)].
 
     * ``true_attitude`` (seed 001's implicit choice): x(0) = 0.
-    * ``leveled``: tilt from the accelerometers, which cancel the level accelerometer biases:
-      phi_E = -nabla_N / g, phi_N = nabla_E / g (ENU components); heading true. The level biases become
-      unobservable in the horizontal velocity.
+    * ``leveled``: tilt from the accelerometers, which cancel the level accelerometer biases at the start:
+      phi_E = -nabla_N / g, phi_N = nabla_E / g (ENU components); heading true. The east bias stays hidden in
+      the tilt; the north one leaks through the Earth-rate coupling (phi_N' = W sin L nabla_N / g), which looks
+      like a north drift of that size: within a few hours the two are separated only by the prior on the bias.
     * ``self_aligned``: leveling plus gyrocompassing, the equilibrium of the error model: additionally
       phi_U = (W_U phi_N - eps_E) / W_N, so the east drift hides in the heading error and is unobservable.
     """
