@@ -111,6 +111,13 @@ class Problem:
             s[idx] = np.sqrt(np.einsum("ij,ij->i", self.L[(si, a)], self.L[(si, a)]))
         return s
 
+    def wcache(self, name, fn):
+        """Whitened quantity cached by name (the noise model is fixed once set up)."""
+        c = self.__dict__.setdefault("_wc", {})
+        if name not in c:
+            c[name] = self.whiten(fn())
+        return c[name]
+
     def cand(self, key):
         for c in self.lib:
             if c.key == key:
@@ -152,14 +159,23 @@ def _base_estimates(theta):
 
 
 def _lstsq(Aw, yw):
-    """Least squares with a rank-revealing SVD: (theta, cov, rank)."""
-    U, s, Vt = np.linalg.svd(Aw, full_matrices=False)
-    tol = s.max() * max(Aw.shape) * np.finfo(float).eps * 1e3 if s.size else 0.0
-    keep = s > tol
-    inv = np.where(keep, 1.0 / np.where(keep, s, 1.0), 0.0)
-    theta = Vt.T @ (inv * (U.T @ yw))
-    cov = (Vt.T * inv**2) @ Vt
-    return theta, cov, int(keep.sum())
+    """Least squares on unit-norm columns by pivoted QR with a rank cut: (theta, cov, rank)."""
+    nrm = np.linalg.norm(Aw, axis=0)
+    nrm[nrm == 0] = 1.0
+    An = Aw / nrm
+    Q, R, piv = linalg.qr(An, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    rank = int(np.sum(d > 1e-9 * d[0])) if d.size else 0
+    Rk = R[:rank, :rank]
+    z = linalg.solve_triangular(Rk, Q[:, :rank].T @ yw)
+    theta = np.zeros(Aw.shape[1])
+    theta[piv[:rank]] = z
+    Ri = linalg.solve_triangular(Rk, np.eye(rank))
+    cov = np.zeros((Aw.shape[1], Aw.shape[1]))
+    cov[np.ix_(piv[:rank], piv[:rank])] = Ri @ Ri.T
+    theta /= nrm
+    cov /= np.outer(nrm, nrm)
+    return theta, cov, rank
 
 
 def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
@@ -189,8 +205,7 @@ def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
         xr, ones = sg.reduced_inputs(geom)
         X0 = sg.base_design(geom, xr, ones)
     cache = library_from.cache if library_from is not None else {}
-    sg.reml_slow(geom, noise, y, X0, parts, cache)
-    _, L = sg.covariance_blocks(geom, noise, parts, cache)
+    _, L = sg.covariance_blocks(geom, noise, parts, cache)        # first guess (Allan random walk)
     prob = Problem(geom, y, noise, parts, L, X0, [], readings, settings=st, cache=cache)
     if library_from is not None:
         prob.lib = library_from.lib
@@ -199,7 +214,29 @@ def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
         M, b = _base_estimates(base.theta)
         prob.lib = sg.build_library(geom, M, b, xr0=xr, ones0=ones)
         _prepare_library(prob)
+    # slow noise by REML on the contrasts orthogonal to the base model and every candidate term
+    sg.reml_slow(geom, noise, y, _reml_design(prob), parts, cache)
+    _, prob.L = sg.covariance_blocks(geom, noise, parts, cache)
+    prob.__dict__.pop("_wc", None)
+    _prepare_library(prob)
     return prob
+
+
+def _reml_design(prob: Problem):
+    """Base design plus every candidate's columns (drift at two time constants, the clock offset to second
+    order): the fixed effects REML integrates out."""
+    cols = [prob.X0]
+    for c in prob.lib:
+        if c.untestable:
+            continue
+        if c.kind == "drift":
+            cols += [c.S_by_tau[300.0], c.S_by_tau[3600.0]]
+        elif c.kind == "offset":
+            M, _ = _base_estimates(fit(prob, []).theta)
+            cols += [c.offset.design_delta(0.0, M, deriv=1)[:, None], c.offset.design_delta(0.0, M, deriv=2)[:, None]]
+        else:
+            cols.append(c.S)
+    return np.hstack(cols)
 
 
 def _prepare_library(prob: Problem):
@@ -254,15 +291,24 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=False, offset_col
     if missing:
         return _fit_drift_taus(prob, terms, taus, delta, missing, offset_column)
     d = float(delta or 0.0) if has_off else 0.0
-    X = prob.X0 if not has_off else prob.cand("time_offset").offset.patch_design(prob.X0, d)
-    cols, names, slices, active = [X], list(sg.BASE_NAMES), {}, {}
+    if has_off:
+        X = prob.cand("time_offset").offset.patch_design(prob.X0, d)
+        Xw = prob.whiten(X)
+    else:
+        X = prob.X0
+        Xw = prob.wcache("X0", lambda: prob.X0)
+    yw = prob.wcache("y", lambda: prob.y)
+    cols, wcols, names, slices, active = [X], [Xw], list(sg.BASE_NAMES), {}, {}
     pos = X.shape[1]
     for k in terms:
         if k == "time_offset":
             continue
         c = prob.cand(k)
+        tau = taus.get(k, 900.0) if c.kind == "drift" else None
         S = _columns(prob, k, taus)
+        Sw = prob.wcache(("S", k, tau), lambda: S)
         cols.append(S)
+        wcols.append(Sw)
         slices[k] = slice(pos, pos + S.shape[1])
         active[k] = c.active
         names += [f"{k}:{c.names[j]}" for j in c.active]
@@ -270,42 +316,34 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=False, offset_col
     if has_off and offset_column:
         # Gauss-Newton column of the offset at d (with the base M of a first solve): the linear correction
         # is ~0 at the profile optimum and the joint covariance includes the offset
-        A = np.hstack(cols)
-        th0, _, _ = _lstsq(prob.whiten(A), prob.whiten(prob.y))
+        th0, _, _ = _lstsq(np.hstack(wcols), yw)
         M, _ = _base_estimates(th0)
         J = prob.cand("time_offset").offset.design_delta(d, M, deriv=1)
         cols.append(J[:, None])
+        wcols.append(prob.whiten(J[:, None]))
         slices["time_offset"] = slice(pos, pos + 1)
         active["time_offset"] = np.array([0])
         names.append("time_offset:offset_s")
-    A = np.hstack(cols)
-    Aw = prob.whiten(A)
-    yw = prob.whiten(prob.y)
+    Aw = np.hstack(wcols)
     theta, cov, rank = _lstsq(Aw, yw)
+    rw = yw - Aw @ theta
+    A = np.hstack(cols)
+    resid = prob.y - A @ theta
     if has_off and offset_column:
         theta = theta.copy()
-        theta[slices["time_offset"]] += d   # report the offset itself (the column is a correction about d)
-    rw = yw - Aw @ (theta - _offset_shift(slices, d, theta.size))
+        theta[slices["time_offset"]] += d   # the column is a correction about d: report the offset itself
     chi2 = float(rw @ rw)
     k = rank + len(drift_keys) + (1 if has_off and not offset_column else 0)
     dof = prob.n - k - prob.n_noise_params
-    resid = prob.y - A @ (theta - _offset_shift(slices, d, theta.size))
     return Fit(terms, theta, cov, chi2, dof, k, names, slices, resid, rw, delta=d, taus=dict(taus),
                active=active, X=A if keep_X else None)
-
-
-def _offset_shift(slices, d, n):
-    v = np.zeros(n)
-    if "time_offset" in slices:
-        v[slices["time_offset"]] = d
-    return v
 
 
 def _fit_offset(prob: Problem, terms, taus):
     """Profile the clock offset: coarse scan on the library grid, then bounded Brent."""
     om = prob.cand("time_offset").offset
     lo, hi = om.bounds
-    grid = np.linspace(lo, hi, 41)
+    grid = np.linspace(lo, hi, 21)
 
     def f(d):
         return fit(prob, terms, delta=float(d), taus=taus, offset_column=False).chi2

@@ -120,6 +120,7 @@ class NavigationCost:
         self.unit = unit
         self.parallel = threads_parallel
         self.n_evaluations = 0
+        self.accel_bias = None  # (3,) m/s^2 compensated in every stream (to show what an unmodelled bias does)
         position_scale(unit, win.lat0, win.h0)  # validate early
 
     def errors(self, eps_deg_h, accel_bias=None):
@@ -129,8 +130,24 @@ class NavigationCost:
         return errors_from_output(out, self.win.lat0, self.win.lon0)
 
     def __call__(self, eps_deg_h):
-        self.n_evaluations += len(np.atleast_2d(eps_deg_h))
-        return cost_J(self.errors(eps_deg_h), self.weights, self.unit, self.win.lat0, self.win.h0)
+        X = np.atleast_2d(eps_deg_h)
+        self.n_evaluations += len(X)
+        ab = None if self.accel_bias is None else np.tile(np.asarray(self.accel_bias, float), (len(X), 1))
+        return cost_J(self.errors(X, ab), self.weights, self.unit, self.win.lat0, self.win.h0)
+
+    def minimum(self, x0, accel_bias=None):
+        """The minimum of J near ``x0`` [deg/h] by Nelder-Mead (J is a sum of absolute values: not smooth), with
+        an optional accelerometer-bias compensation [m/s^2]. Separates the optimiser's error from J's own."""
+        from scipy.optimize import minimize as nm
+
+        old, self.accel_bias = self.accel_bias, accel_bias
+        try:
+            r = nm(lambda x: float(self(x[None])[0]), np.asarray(x0, float), method="Nelder-Mead",
+                   options={"xatol": 1e-7, "fatol": 1e-9, "maxiter": 3000, "initial_simplex": np.asarray(x0, float)
+                            + np.vstack([np.zeros(3), 0.002 * np.eye(3)])})
+        finally:
+            self.accel_bias = old
+        return r.x, float(r.fun)
 
     @property
     def times_h(self):
@@ -315,3 +332,19 @@ def kalman_baseline(cost: NavigationCost, arw_rad_rts, condition, estimate_accel
     est = r.estimate[:3] / DEG_PER_H
     se = np.sqrt(np.diag(r.covariance)[:3]) / DEG_PER_H
     return est, se, (r.estimate[3:] if estimate_accel_bias else None)
+
+
+def longitude_noise_sigma(T_s, lat, C_bn, arw_rad_rts, white_rad_s=0.0, dt_sample=0.01, h=0.0, step_s=60.0):
+    """1-sigma longitude error [rad] at time ``T_s`` caused by the gyro noise alone (linear error model).
+
+    The stationary error model is time invariant, so the response to white rate noise of PSD q is
+    var = q sum_k int_0^T h_k(t)^2 dt, with h_k = d s_k / dt the impulse response of longitude to a drift on
+    body axis k (s_k from :func:`calib.errormodel.sensitivity`).
+    """
+    from . import errormodel
+
+    t = np.arange(0.0, T_s + step_s, step_s)
+    S = errormodel.sensitivity(t, lat, C_bn, h)[:, 6, :3]  # (N, 3) longitude per unit drift
+    hk = np.diff(S, axis=0) / step_s
+    q = arw_rad_rts**2 + white_rad_s**2 * dt_sample
+    return math.sqrt(q * float(np.sum(hk**2)) * step_s)

@@ -463,14 +463,12 @@ def gm_part(geom: Geometry, sensor: str, tc: float):
                 v = tc**2 * (e(-(q0 - p1) / tc) - e(-(q0 - p0) / tc) - e(-(q1 - p1) / tc) + e(-(q1 - p0) / tc)) / \
                     ((p1 - p0) * (q1 - q0))
             A[starts[j], starts[k]] = A[starts[k], starts[j]] = v
-    # harmonic rows: within-window random-walk equivalent
+    # harmonic rows: within-window random-walk equivalent (K^2 = 2/tc), uncorrelated with the means
     _, _, AK = covariance_parts(geom, sensor, rw_within_only=True)
     for j in range(len(ws)):
         if rows[j] > 1:
-            sl = slice(starts[j], starts[j] + rows[j])
-            blk = AK[sl, sl] * (2.0 / tc)
-            blk[0, 0] = A[starts[j], starts[j]]
-            A[sl, sl] = blk
+            sl = slice(starts[j] + 1, starts[j] + rows[j])
+            A[sl, sl] = AK[sl, sl] * (2.0 / tc)
     return A
 
 
@@ -488,8 +486,9 @@ def slow_structure(parts, geom, sensor, tc, cache=None):
 
 
 def reml_slow(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS):
-    """Restricted-ML estimate of the slow noise per (sensor, axis) block from the base-model fit of that
-    block alone, with Q and N fixed: sigma^2 on a log grid (plus 0) for each correlation time in ``tcs``;
+    """Restricted-ML estimate of the slow noise per (sensor, axis) block from the error contrasts orthogonal
+    to the fixed-effect design ``X`` (the diagnosis passes the base model *and every candidate term*, so the
+    estimate is not inflated by any effect of the library), with Q and N fixed: sigma^2 on a log grid (plus 0) for each correlation time in ``tcs``;
     the best (Tc, sigma) is stored in ``noise.slow``. Uses C = C0 + s^2 A = L (I + s^2 V Lam V^T) L^T, so every
     s^2 costs O(m) after one eigendecomposition per Tc."""
     cache = {} if cache is None else cache
@@ -505,8 +504,12 @@ def reml_slow(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW
             L0 = np.linalg.cholesky(C0)
             ld0 = 2.0 * np.sum(np.log(np.diag(L0)))
             X1 = linalg.solve_triangular(L0, Xb, lower=True)
+            # an orthonormal basis of the (whitened) fixed-effect space: REML only needs the space
+            U, sv, _ = np.linalg.svd(X1, full_matrices=False)
+            X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
             y1 = linalg.solve_triangular(L0, yb, lower=True)
             best = (np.inf, math.inf, 0.0)
+            nll0 = None
             for tc in tcs:
                 A = slow_structure(parts, geom, s, tc, cache)
                 B = linalg.solve_triangular(L0, linalg.solve_triangular(L0, A, lower=True).T, lower=True)
@@ -524,9 +527,13 @@ def reml_slow(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW
                 rr = yWy - np.einsum("gi,gi->g", sol, XtWy)
                 _, ldx = np.linalg.slogdet(XtWX)
                 nll = ld0 + np.sum(np.log(d), axis=1) + ldx + rr
+                nll0 = float(nll[0])
                 j = int(np.argmin(nll))
                 if nll[j] < best[0]:
                     best = (float(nll[j]), tc, float(math.sqrt(s2[j])))
+            # keep a slow component only when it beats white noise alone by a BIC margin (2 parameters)
+            if nll0 is not None and nll0 - best[0] < 2.0 * math.log(len(idx)):
+                best = (nll0, math.inf, 0.0)
             noise.slow[s][a] = (best[1], best[2])
             out[(s, a)] = noise.slow[s][a]
     return out

@@ -1,0 +1,10 @@
+"""Rule sweep_gather: all points of a sweep into one netCDF (swept parameters as dimensions), CSV and figure."""
+from calib import runlog, sweeps
+from calib.ncio import provenance
+
+p = snakemake.params
+o = snakemake.output
+with runlog.to_file(snakemake.log[0]):
+    sweeps.gather(p.kind, snakemake.wildcards.sweep, list(snakemake.input.points), p.values, p.columns, o.nc, o.table,
+                  o.fig, o.metrics, attrs=p.attrs,
+                  prov=provenance(snakemake.rule, {"values": p.values, "attrs": p.attrs}))
