@@ -55,6 +55,7 @@ import numpy as np
 from scipy import linalg, optimize, stats
 
 from . import signatures as sg
+from .recording import STANDARD_GRAVITY as STANDARD_GRAVITY_
 from .signatures import SENSORS, AXES, DiagnosisInputError
 
 REPORT_FORMAT = "calib-diagnosis-1"
@@ -81,14 +82,16 @@ DEFAULT_SETTINGS = {
 @dataclass
 class Problem:
     geom: sg.Geometry
-    y: np.ndarray                 # observations
+    y: np.ndarray                 # observations (norm model: base residuals at the base solution)
     noise: sg.NoiseFit
     parts: dict                   # covariance parts per sensor
     L: dict                       # Cholesky factors per (sensor index, axis)
     X0: np.ndarray                # base design at zero clock offset (n, 24)
     lib: list                     # candidates
     readings: dict                # per-sample rate readings per sensor
-    n_noise_params: int = 12      # noise parameters estimated from the residuals (Tc, sigma per block)
+    n_noise_params: int = 18      # noise parameters estimated from the residuals (level, Tc, sigma per block)
+    kind: str = "vector"          # 'vector' | 'norm'
+    base_names: tuple = sg.BASE_NAMES
     settings: dict = field(default_factory=dict)
     cache: dict = field(default_factory=dict)   # slow-noise structures per (sensor, Tc)
 
@@ -195,7 +198,7 @@ def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
     if geom.model != "vector":
         raise DiagnosisInputError("no nominal attitudes: the vector model needs them", "use the norm problem")
     y, readings = sg.reduce_data(geom, ds)
-    noise = sg.fit_noise(geom, readings)
+    noise = sg.fit_noise(geom, readings, sg.pulse_counter_channels(ds))
     if library_from is not None:
         parts = library_from.parts
         xr, ones = None, None
@@ -223,14 +226,20 @@ def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
 
 
 def _reml_design(prob: Problem):
-    """Base design plus every candidate's columns (drift at two time constants, the clock offset to second
-    order): the fixed effects REML integrates out."""
+    """The fixed effects REML integrates out: the base design plus every candidate's columns that vary with
+    attitude, rate or table angle (the clock offset to second order). Terms that are smooth in *time* --
+    bias drift and the bias part of the temperature sensitivity -- are left out on purpose: a slow bias
+    wander of the noise and a slow deterministic drift cannot be told apart from the data alone, so the
+    noise model takes it (a drift is then found only where it exceeds what a bias instability of correlation
+    time <= 600 s explains)."""
     cols = [prob.X0]
     for c in prob.lib:
         if c.untestable:
             continue
         if c.kind == "drift":
-            cols += [c.S_by_tau[300.0], c.S_by_tau[3600.0]]
+            continue
+        if c.effect == "temperature_sensitivity":
+            cols.append(c.S[:, [j for j, nm in enumerate(c.names) if "scale" in nm]])
         elif c.kind == "offset":
             M, _ = _base_estimates(fit(prob, []).theta)
             cols += [c.offset.design_delta(0.0, M, deriv=1)[:, None], c.offset.design_delta(0.0, M, deriv=2)[:, None]]
@@ -239,16 +248,33 @@ def _reml_design(prob: Problem):
     return np.hstack(cols)
 
 
+def typical_scale(c) -> np.ndarray:
+    """Typical magnitude of every parameter of a candidate: the largest |value| of the registry default of
+    its key (calib.effects), the yardstick for 'determined' (a 1-sigma error above it means the path cannot
+    say anything useful about that parameter)."""
+    from . import effects
+
+    d = effects.REGISTRY[c.effect].defaults
+    out = []
+    for key, _ in c.keys:
+        v = np.abs(np.asarray(d[key], dtype=float))
+        out.append(float(v.max()) if v.size and v.max() > 0 else 1.0)
+    return np.array(out)
+
+
 def _prepare_library(prob: Problem):
-    """Visible (determined) parameters of every candidate against the base model, whitened."""
-    vr = prob.settings["visible_rel"]
+    """Absorbed fraction (geometric, whitened) and the determined parameters of every candidate: those whose
+    standard error with the base model alone stays below the typical magnitude of the effect (dropped one
+    at a time, worst first)."""
     Xw = prob.whiten(prob.X0)
     Q, _ = np.linalg.qr(Xw)
+    yw = prob.whiten(prob.y)
     for c in prob.lib:
         if c.untestable or c.S is None:
-            c.active = np.arange(c.p)
+            c.active = np.arange(0)
             c.visible = np.zeros(c.p)
             c.absorbed = np.ones(c.p)
+            c.se0 = np.full(c.p, np.inf)
             continue
         Sw = prob.whiten(c.S)
         P = Sw - Q @ (Q.T @ Sw)
@@ -256,14 +282,22 @@ def _prepare_library(prob: Problem):
         vis = np.linalg.norm(P, axis=0)
         c.visible = vis
         c.absorbed = 1.0 - np.divide(vis, nrm, out=np.zeros_like(vis), where=nrm > 0)
-        keep = np.flatnonzero(vis > vr * max(vis.max(), 1e-300))
-        # drop columns that are linear combinations of the others (pivoted QR on the visible parts)
-        if keep.size > 1:
-            _, R, piv = linalg.qr(P[:, keep], mode="economic", pivoting=True)
-            d = np.abs(np.diag(R))
-            rank = int(np.sum(d > 1e-6 * d[0]))
-            keep = np.sort(keep[piv[:rank]])
-        c.active = keep if vis.max() > 0 else np.arange(0)
+        scale = typical_scale(c)
+        keep = list(np.flatnonzero(vis > 0))
+        se = np.full(c.p, np.inf)
+        while keep:
+            _, cov, _ = _lstsq(np.hstack([Xw, Sw[:, keep]]), yw)
+            s = np.sqrt(np.clip(np.diag(cov)[Xw.shape[1]:], 0.0, None))
+            s[~np.isfinite(s) | (s == 0)] = np.inf
+            ratio = s / scale[keep]
+            se[:] = np.inf
+            se[keep] = s
+            j = int(np.argmax(ratio))
+            if ratio[j] <= 1.0:
+                break
+            keep.pop(j)
+        c.se0 = se
+        c.active = np.array(sorted(keep), dtype=int)
 
 
 # =====================================================================================================
@@ -278,7 +312,7 @@ def _columns(prob: Problem, key, taus):
     return S[:, c.active]
 
 
-def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=False, offset_column=True) -> Fit:
+def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_column=True) -> Fit:
     """GLS fit of the base model plus ``terms`` (candidate keys). Nonlinear parameters (clock offset, drift
     time constants) are optimised by profile likelihood unless given."""
     terms = list(terms)
@@ -298,7 +332,7 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=False, offset_col
         X = prob.X0
         Xw = prob.wcache("X0", lambda: prob.X0)
     yw = prob.wcache("y", lambda: prob.y)
-    cols, wcols, names, slices, active = [X], [Xw], list(sg.BASE_NAMES), {}, {}
+    cols, wcols, names, slices, active = [X], [Xw], list(prob.base_names), {}, {}
     pos = X.shape[1]
     for k in terms:
         if k == "time_offset":
@@ -439,23 +473,66 @@ def library_geometry(prob: Problem, rows=None, terms=()):
 # stepwise selection
 # =====================================================================================================
 def testable_keys(prob: Problem):
-    thr = prob.settings["absorbed_untestable"]
-    out = []
-    for c in prob.lib:
-        if c.untestable:
-            continue
+    """Candidates with at least one determined parameter."""
+    return [c.key for c in prob.lib if not c.untestable and c.active.size > 0]
+
+
+def is_slow(c) -> bool:
+    """Terms smooth in time (bias drift, temperature sensitivity): tested against a re-estimated noise."""
+    return c.kind == "drift" or c.effect == "temperature_sensitivity"
+
+
+def _design_blocks(prob: Problem, key):
+    c = prob.cand(key)
+    si = SENSORS.index(c.sensor)
+    return [(si, a) for a in range(3)]
+
+
+def _slow_statistic(prob: Problem, cur: Fit, key):
+    """-2 log likelihood-ratio of adding the slow term ``key`` with the noise of its sensor's blocks
+    re-profiled (full ML: level, bias-instability sigma and Tc) under both designs; the drift time constant
+    profiled over a coarse grid. Returns (statistic, extra parameters, tau or None)."""
+    c = prob.cand(key)
+    blocks = _design_blocks(prob, key)
+    Xc = cur.X
+    y = prob.y
+
+    def nll(X):
+        r = sg.profile_noise(prob.geom, prob.noise, y, X, prob.parts, prob.cache, blocks=blocks, method="ml",
+                             update=False)
+        return sum(v[0] for v in r.values())
+
+    n0 = nll(Xc)
+    best = (np.inf, None)
+    taus = (300.0, 900.0, 2700.0) if c.kind == "drift" else (None,)
+    for tau in taus:
+        S = _columns(prob, key, {key: tau} if tau else {})
+        v = nll(np.hstack([Xc, S]))
+        if v < best[0]:
+            best = (v, tau)
+    k = int(c.active.size) + (1 if c.kind == "drift" else 0)
+    return n0 - best[0], k, best[1]
+
+
+def renoise(prob: Problem, terms, taus=None, delta=0.0):
+    """Re-estimate the noise (REML) with ``terms`` added to the fixed effects and reset the whitening."""
+    extra = []
+    for k in terms:
+        c = prob.cand(k)
         if c.kind == "offset":
-            out.append(c.key)
             continue
-        if c.active.size == 0 or np.all(c.absorbed[c.active] > thr):
-            continue
-        out.append(c.key)
-    return out
+        if is_slow(c):
+            extra.append(_columns(prob, k, taus or {}))
+    X = np.hstack([_reml_design(prob)] + extra)
+    sg.reml_slow(prob.geom, prob.noise, prob.y, X, prob.parts, prob.cache)
+    _, prob.L = sg.covariance_blocks(prob.geom, prob.noise, prob.parts, prob.cache)
+    prob.__dict__.pop("_wc", None)
 
 
 def stepwise(prob: Problem, base: Fit | None = None):
     """Forward selection by BIC with a likelihood-ratio test. Returns (final fit, steps, candidate table of
-    the last step)."""
+    the last step). Terms smooth in time are tested with the noise re-profiled (:func:`_slow_statistic`);
+    when one is selected the noise is re-estimated with it as a fixed effect."""
     st = prob.settings
     n = prob.n
     cur = base or fit(prob, [])
@@ -467,22 +544,36 @@ def stepwise(prob: Problem, base: Fit | None = None):
         for k in keys:
             if k in cur.terms:
                 continue
-            f = fit(prob, cur.terms + [k])
-            dchi = cur.chi2 - f.chi2
-            dk = f.k - cur.k
+            c = prob.cand(k)
+            if is_slow(c) and prob.kind == "vector":
+                dchi, dk, tau = _slow_statistic(prob, cur, k)
+                f = None
+            else:
+                f = fit(prob, cur.terms + [k], taus=cur.taus, delta=None)
+                dchi = cur.chi2 - f.chi2
+                dk = f.k - cur.k
+                tau = None
             if dk <= 0:
                 continue
             dbic = dchi - dk * math.log(n)
             p = float(stats.chi2.sf(max(dchi, 0.0), dk))
-            table.append({"term": k, "delta_chi2": dchi, "delta_k": dk, "delta_bic": dbic, "p_lrt": p, "fit": f})
+            table.append({"term": k, "delta_chi2": float(dchi), "delta_k": int(dk), "delta_bic": float(dbic),
+                          "p_lrt": p, "fit": f, "tau": tau,
+                          "statistic": "-2 ln LR, noise re-profiled" if is_slow(c) else "delta chi-square"})
         table.sort(key=lambda r: -r["delta_bic"])
         last_table = table
         ok = [r for r in table if r["delta_bic"] > 0 and r["p_lrt"] < st["alpha"]]
         if not ok:
             break
         best = ok[0]
-        steps.append({k: v for k, v in best.items() if k != "fit"} | {"chi2_after": best["fit"].chi2})
-        cur = best["fit"]
+        terms = cur.terms + [best["term"]]
+        if best["fit"] is None:   # a slow term: re-estimate the noise with it, refit everything
+            renoise(prob, terms, {**cur.taus, best["term"]: best["tau"]} if best["tau"] else cur.taus)
+            new = fit(prob, terms)
+        else:
+            new = best["fit"]
+        steps.append({k: v for k, v in best.items() if k != "fit"} | {"chi2_after": new.chi2})
+        cur = new
     return cur, steps, last_table
 
 
@@ -555,3 +646,953 @@ class FastSession:
         t = copy.deepcopy(self.truth)
         t["seed"] = int(seed)
         return t
+
+
+# =====================================================================================================
+# analysis: goodness of fit, locate, name, model it
+# =====================================================================================================
+def _block_table(prob: Problem, f: Fit):
+    out = []
+    for (si, a), idx in prob.geom.obs["blocks"].items():
+        c2 = float(np.sum(f.resid_w[idx] ** 2))
+        out.append({"sensor": SENSORS[si], "axis": AXES[a], "chi2": c2, "n_obs": int(idx.size),
+                    "share": c2 / f.chi2 if f.chi2 > 0 else 0.0})
+    return out
+
+
+def _window_table(prob: Problem, f: Fit):
+    """Standardised residuals (raw residual / sigma) per window, sensor, axis and row."""
+    g, o = prob.geom, prob.geom.obs
+    z = f.resid / prob.sigma()
+    rows = []
+    for wi, w in enumerate(g.windows):
+        ent = {"window": wi, "label": w.label, "kind": w.kind, "t_start_s": float(g.time_s[w.i0]),
+               "duration_s": w.n * g.dt}
+        if w.kind == "rotation":
+            ent["rate_deg_s"] = w.rate_deg_s
+        for si, s in enumerate(SENSORS):
+            for r in range(3):
+                m = (o["window"] == wi) & (o["sensor"] == si) & (o["row"] == r)
+                if m.any():
+                    ent[f"{s}_{sg.ROWS[r]}"] = {"residual": f.resid[m].tolist(), "z": z[m].tolist()}
+        rows.append(ent)
+    return rows
+
+
+def locate(prob: Problem, f: Fit) -> dict:
+    """Where the misfit of fit ``f`` lives (see module doc, step 2). All z-scores are residual / sigma of the
+    observation (sigma from the noise model); amplitudes are in the output unit."""
+    g, o = prob.geom, prob.geom.obs
+    sig = prob.sigma()
+    r = f.resid
+    out = {"by_sensor_axis": _block_table(prob, f)}
+    findings = []
+    # --- static phases: table-angle harmonics and phase disagreement
+    phases = {}
+    for wi, w in enumerate(g.windows):
+        if w.kind == "static" and w.phase and w.position >= 0:
+            phases.setdefault(w.phase, []).append(wi)
+    ph_out = []
+    for ph, wins in sorted(phases.items()):
+        npos = max(g.windows[wi].position for wi in wins) + 1
+        step = 360.0 / npos if npos > 0 else 0.0
+        th = np.radians([g.windows[wi].position * step for wi in wins])
+        hmax = max(1, (len(wins) - 1) // 2)
+        cols = [np.ones_like(th)]
+        names = ["mean"]
+        for h in range(1, hmax + 1):
+            cols += [np.cos(h * th), np.sin(h * th)]
+            names += [f"cos{h}", f"sin{h}"]
+        Xh = np.column_stack(cols)
+        if np.linalg.matrix_rank(Xh) < Xh.shape[1]:
+            Xh = Xh[:, :np.linalg.matrix_rank(Xh)]
+        for si, s in enumerate(SENSORS):
+            for a in range(3):
+                idx = np.array([np.flatnonzero((o["window"] == wi) & (o["sensor"] == si) & (o["axis"] == a)
+                                               & (o["row"] == 0))[0] for wi in wins])
+                zz = r[idx] / sig[idx]
+                coef, *_ = np.linalg.lstsq(Xh, zz, rcond=None)
+                covh = np.linalg.inv(Xh.T @ Xh)
+                harms = []
+                for h in range(1, hmax + 1):
+                    j = 2 * h - 1
+                    if j + 1 >= Xh.shape[1]:
+                        break
+                    c2 = coef[j:j + 2]
+                    chi = float(c2 @ np.linalg.solve(covh[j:j + 2, j:j + 2], c2))
+                    amp = float(np.hypot(*c2) * np.mean(sig[idx]))
+                    harms.append({"harmonic": h, "amplitude": amp, "chi2_2dof": chi,
+                                  "p": float(stats.chi2.sf(chi, 2))})
+                mean_z = float(coef[0] / math.sqrt(covh[0, 0]))
+                ent = {"phase": ph, "sensor": s, "axis": AXES[a], "step_deg": step, "positions": len(wins),
+                       "mean_residual": float(np.mean(r[idx])), "mean_z": mean_z, "harmonics": harms}
+                ph_out.append(ent)
+                for hh in harms:
+                    if hh["p"] < 1e-3:
+                        findings.append((hh["chi2_2dof"], f"{s} {AXES[a]} in phase {ph}: harmonic {hh['harmonic']} of "
+                                         f"the table angle, amplitude {hh['amplitude']:.3g} {g.units_out[s]} "
+                                         f"(p = {hh['p']:.2g})"))
+                if abs(mean_z) > 3.5:
+                    findings.append((mean_z**2, f"{s} {AXES[a]}: phase {ph} mean residual "
+                                     f"{np.mean(r[idx]):.3g} {g.units_out[s]} ({mean_z:+.1f} sigma): phases disagree"))
+    out["static_phases"] = ph_out
+    # --- rotation pairs: sums and differences against |rate|
+    rot = [wi for wi, w in enumerate(g.windows) if w.kind == "rotation"]
+    pairs = []
+    used = set()
+    for i in rot:
+        if i in used:
+            continue
+        wi = g.windows[i]
+        for j in rot:
+            if j == i or j in used:
+                continue
+            wj = g.windows[j]
+            if np.allclose(wi.axis * wi.rate_deg_s, -wj.axis * wj.rate_deg_s, rtol=1e-6, atol=1e-9):
+                pairs.append((i, j) if wi.rate_deg_s > 0 else (j, i))
+                used |= {i, j}
+                break
+    pr_out = []
+    for si, s in enumerate(SENSORS):
+        for a in range(3):
+            sums, difs, rates, ax_lab = [], [], [], []
+            for (p, m) in pairs:
+                ip = np.flatnonzero((o["window"] == p) & (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0))
+                im = np.flatnonzero((o["window"] == m) & (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0))
+                if not ip.size or not im.size:
+                    continue
+                ip, im = ip[0], im[0]
+                sd = 0.5 * math.hypot(sig[ip], sig[im])
+                sums.append(((r[ip] + r[im]) / 2, sd))
+                difs.append(((r[ip] - r[im]) / 2, sd))
+                rates.append(abs(g.windows[p].rate_deg_s))
+                ax_lab.append(AXES[int(np.argmax(np.abs(g.windows[p].axis)))])
+            if not sums:
+                continue
+            ent = {"sensor": s, "axis": AXES[a], "pairs": [
+                {"rotation_axis": al, "rate_deg_s": rt, "sum": sm[0], "sum_z": sm[0] / sm[1], "difference": df[0],
+                 "difference_z": df[0] / df[1]} for al, rt, sm, df in zip(ax_lab, rates, sums, difs)]}
+            for kind, vals in (("sum", sums), ("difference", difs)):
+                zv = np.array([v[0] / v[1] for v in vals])
+                chi = float(np.sum(zv**2))
+                ent[f"{kind}_chi2"] = chi
+                ent[f"{kind}_p"] = float(stats.chi2.sf(chi, zv.size))
+                rt = np.array(rates)
+                if np.ptp(rt) > 0:
+                    w = 1.0 / np.array([v[1] for v in vals]) ** 2
+                    Xr = np.column_stack([np.ones_like(rt), rt])
+                    cf = np.linalg.solve(Xr.T @ (Xr * w[:, None]), Xr.T @ (w * np.array([v[0] for v in vals])))
+                    ent[f"{kind}_slope_per_deg_s"] = float(cf[1])
+                if ent[f"{kind}_p"] < 1e-3:
+                    findings.append((chi, f"{s} {AXES[a]}: rotation-pair {kind}s do not fit (chi2 {chi:.1f} on "
+                                     f"{zv.size}, p = {ent[kind + '_p']:.2g}); "
+                                     + ("sums see biases, g-sensitivity, Earth rate along the axis, scale asymmetry"
+                                        if kind == "sum" else "differences see scale factors and rate-odd terms")))
+            pr_out.append(ent)
+    out["rotation_pairs"] = pr_out
+    # --- gyro harmonics: in-phase and quadrature residual against rate (clock offset, Earth-rate magnitude)
+    hq = []
+    M = _base_estimates(f.theta)[0] if prob.kind == "vector" else None
+    for wi in (rot if M is not None else []):
+        w = g.windows[wi]
+        if w.rows < 3:
+            continue
+        for a in range(3):
+            ic = np.flatnonzero((o["window"] == wi) & (o["sensor"] == 1) & (o["axis"] == a) & (o["row"] == 1))
+            isn = np.flatnonzero((o["window"] == wi) & (o["sensor"] == 1) & (o["axis"] == a) & (o["row"] == 2))
+            if not ic.size:
+                continue
+            pred = prob.X0[[ic[0], isn[0]]][:, 12 + 3 * a:15 + 3 * a] @ M["gyro"][a]
+            amp = float(np.hypot(*pred))
+            if amp <= 0:
+                continue
+            u = pred / amp
+            res2 = np.array([r[ic[0]], r[isn[0]]])
+            inph = float(res2 @ u)
+            quad = float(u[0] * res2[1] - u[1] * res2[0])
+            sd = float(sig[ic[0]])
+            hq.append({"window": w.label, "axis": AXES[a], "rate_deg_s": w.rate_deg_s, "amplitude": amp,
+                       "in_phase": inph, "quadrature": quad, "in_phase_z": inph / sd, "quadrature_z": quad / sd})
+    if hq:
+        zq = np.array([h["quadrature_z"] for h in hq])
+        rq = np.array([h["rate_deg_s"] for h in hq])
+        chi = float(np.sum(zq**2))
+        out["gyro_harmonics"] = {"windows": hq, "quadrature_chi2": chi, "n": int(zq.size),
+                                 "quadrature_p": float(stats.chi2.sf(chi, zq.size)),
+                                 "quadrature_vs_rate_corr": float(np.corrcoef(zq, rq)[0, 1]) if zq.size > 2 else 0.0}
+        if out["gyro_harmonics"]["quadrature_p"] < 1e-3:
+            findings.append((chi, f"gyro: the table-angle harmonics are phase-shifted (quadrature chi2 {chi:.1f} on "
+                             f"{zq.size}); a shift that grows with the signed rate points to a clock offset"))
+    # --- time course
+    nb = 6
+    tw = np.array([g.time_s[w.i0] for w in g.windows])
+    edges = np.linspace(tw.min(), tw.max() + 1e-9, nb + 1)
+    tbins = []
+    z = r / sig
+    for b in range(nb):
+        wins = np.flatnonzero((tw >= edges[b]) & (tw < edges[b + 1]))
+        m = np.isin(o["window"], wins)
+        if m.any():
+            tbins.append({"t0_s": float(edges[b]), "t1_s": float(edges[b + 1]), "n_obs": int(m.sum()),
+                          "mean_z2": float(np.mean(z[m] ** 2))})
+    trends = []
+    for si, s in enumerate(SENSORS):
+        for a in range(3):
+            m = (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0)
+            if m.sum() < 3:
+                continue
+            t = tw[o["window"][m]]
+            wgt = 1.0 / sig[m] ** 2
+            Xt = np.column_stack([np.ones_like(t), t / 3600.0])
+            A_ = Xt.T @ (Xt * wgt[:, None])
+            cf = np.linalg.solve(A_, Xt.T @ (wgt * r[m]))
+            se = math.sqrt(np.linalg.inv(A_)[1, 1])
+            trends.append({"sensor": s, "axis": AXES[a], "slope_per_h": float(cf[1]), "slope_z": float(cf[1] / se)})
+            if abs(cf[1] / se) > 4:
+                findings.append(((cf[1] / se) ** 2, f"{s} {AXES[a]}: residuals trend with time "
+                                 f"({cf[1]:.3g} {g.units_out[s]} per h, {cf[1] / se:+.1f} sigma; note: segment means "
+                                 "are correlated in time, this z is indicative)"))
+    out["time"] = {"bins": tbins, "trends": trends}
+    findings.sort(key=lambda x: -x[0])
+    out["summary"] = [txt for _, txt in findings[:8]]
+    return out
+
+
+def _param_entries(prob: Problem, f: Fit, key):
+    c = prob.cand(key)
+    sl = f.slices[key]
+    se = np.sqrt(np.clip(np.diag(f.cov)[sl], 0.0, None))
+    vals = f.theta[sl]
+    idx = f.active.get(key, c.active) if key != "time_offset" else np.array([0])
+    out = []
+    for j, v, s in zip(idx, vals, se):
+        out.append({"name": c.names[j], "value": float(v), "ci95": [float(v - 1.96 * s), float(v + 1.96 * s)],
+                    "se": float(s), "unit": c.units[j], "axis": c.axes[j]})
+    return out
+
+
+def _aliases(prob: Problem, final: Fit, key, geometry_angles):
+    st = prob.settings
+    n = prob.n
+    others = [k for k in testable_keys(prob) if k not in final.terms]
+    rest = [t for t in final.terms if t != key]
+    out = []
+    for b in others:
+        try:
+            fb = fit(prob, rest + [b])
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+        dbic = (fb.chi2 - final.chi2) + (fb.k - final.k) * math.log(n)
+        ang = geometry_angles.get(frozenset((key, b)), float("nan"))
+        if dbic < st["alias_delta_bic"] or (np.isfinite(ang) and ang < st["alias_angle_deg"]):
+            c = prob.cand(b)
+            out.append({"effect": c.effect, "sensor": c.sensor, "key": b, "delta_bic_vs_found": float(dbic),
+                        "signature_angle_deg": None if not np.isfinite(ang) else float(ang)})
+    out.sort(key=lambda d: d["delta_bic_vs_found"])
+    return out
+
+
+def _absent(prob: Problem, final: Fit, table):
+    tab = {r["term"]: r for r in table}
+    out = []
+    for k in testable_keys(prob):
+        if k in final.terms:
+            continue
+        c = prob.cand(k)
+        try:
+            fk = fit(prob, final.terms + [k], taus={**final.taus, k: 900.0} if c.kind == "drift" else final.taus)
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+        pars = _param_entries(prob, fk, k)
+        bounds = [{"name": p["name"], "upper_bound_abs": abs(p["value"]) + 1.96 * p["se"], "value": p["value"],
+                   "se": p["se"], "unit": p["unit"]} for p in pars]
+        undet = [c.names[j] for j in range(c.p) if j not in set(c.active.tolist())]
+        r = tab.get(k, {})
+        out.append({"effect": c.effect, "sensor": c.sensor, "key": k, "upper_bound_95": bounds,
+                    "undetermined_parameters": undet, "delta_bic": r.get("delta_bic"), "p_lrt": r.get("p_lrt"),
+                    "note": "bound conditional on tau = 900 s" if c.kind == "drift" else ""})
+    return out
+
+
+def _untestable(prob: Problem):
+    thr = prob.settings["absorbed_untestable"]
+    out = []
+    for c in prob.lib:
+        if c.untestable:
+            out.append({"effect": c.effect, "sensor": c.sensor, "key": c.key, "why": c.untestable,
+                        "experiment": c.experiment})
+        elif c.active.size == 0:
+            if c.effect in sg.EXPERIMENTS:
+                why, exp = sg.EXPERIMENTS[c.effect]
+            else:
+                why, exp = "", ""
+            absorbed = float(np.max(c.absorbed)) if c.absorbed.size else 1.0
+            why = (why + "; " if why else "") + (
+                f"the base parameters absorb {100 * absorbed:.4g} % of its signature" if absorbed > thr else
+                "its signature is too weak on this path: the 1-sigma error of every parameter exceeds the effect's "
+                "typical magnitude")
+            if not exp:
+                exp = "add segments that excite it (see the signature table) or repeat the session to average noise"
+            out.append({"effect": c.effect, "sensor": c.sensor, "key": c.key, "why": why, "experiment": exp,
+                        "absorbed_fraction": absorbed})
+    return out
+
+
+def _separating_segments(prob: Problem, a_key, b_key, top=5):
+    """Windows that carry the information separating candidate a from b: the part of a's visible signature
+    orthogonal to (base + b), its energy per window (whitened)."""
+    Xw = prob.whiten(prob.X0)
+    Sa = prob.whiten(prob.cand(a_key).S if prob.cand(a_key).kind == "offset" else _columns(prob, a_key, {}))
+    Sb = prob.whiten(prob.cand(b_key).S if prob.cand(b_key).kind == "offset" else _columns(prob, b_key, {}))
+    Q, _ = np.linalg.qr(np.hstack([Xw, Sb]))
+    P = Sa - Q @ (Q.T @ Sa)
+    e = np.sum(P**2, axis=1)
+    o = prob.geom.obs
+    per = {}
+    for k in range(prob.n):
+        lab = prob.geom.windows[o["window"][k]].label
+        per[lab] = per.get(lab, 0.0) + e[k]
+    tot = sum(per.values()) or 1.0
+    best = sorted(per.items(), key=lambda kv: -kv[1])[:top]
+    return [{"segment": lab, "share": v / tot} for lab, v in best]
+
+
+def analyse(prob: Problem) -> dict:
+    """Steps 1-5 on a set-up problem; returns the report content (without file paths)."""
+    st = prob.settings
+    n = prob.n
+    base0 = fit(prob, [])
+    final, steps, table = stepwise(prob, base0)
+    # noise re-estimated with the selected terms as fixed effects, then everything refitted under it
+    if final.terms and prob.kind == "vector":
+        renoise(prob, final.terms, final.taus, final.delta)
+    base = fit(prob, [])
+    final = fit(prob, final.terms, taus=final.taus) if final.terms else base
+    info, angles = library_geometry(prob)
+    ang_map = {frozenset((a, b)): v for a, b, v in angles}
+    groups = []
+    for a, b, v in angles:
+        if np.isfinite(v) and v < st["alias_angle_deg"]:
+            groups.append({"members": [a, b], "angle_deg": v})
+    found = []
+    step_info = {s["term"]: s for s in steps}
+    for k in final.terms:
+        c = prob.cand(k)
+        pars = _param_entries(prob, final, k)
+        ent = {"effect": c.effect, "sensor": c.sensor, "key": k,
+               "axes": sorted({p["axis"] for p in pars if p["axis"] and abs(p["value"]) > 1.96 * p["se"]}),
+               "parameters": pars,
+               "undetermined_parameters": [c.names[j] for j in range(c.p) if j not in set(c.active.tolist())]
+               if c.kind != "offset" else [],
+               "delta_bic": step_info.get(k, {}).get("delta_bic"), "p_lrt": step_info.get(k, {}).get("p_lrt"),
+               "aliases": _aliases(prob, final, k, ang_map)}
+        if c.kind == "drift":
+            ent["tau_s"] = final.taus.get(k)
+            ent["note"] = "tau profiled on a grid; intervals of the other drift parameters are conditional on it"
+        found.append(ent)
+    sig = prob.sigma()
+    gof = {}
+    for name, f in (("before", base), ("after", final)):
+        gof[name] = {"chi2": f.chi2, "dof": f.dof, "p": f.p, "by_sensor_axis": _block_table(prob, f)}
+    rms = {}
+    o = prob.geom.obs
+    for name, f in (("before", base), ("after", final)):
+        d = {}
+        for si, s in enumerate(SENSORS):
+            for kind in ("static", "rotation"):
+                for r in range(3):
+                    m = (o["sensor"] == si) & (o["row"] == r) & np.array(
+                        [prob.geom.windows[w].kind == kind for w in o["window"]])
+                    if m.any():
+                        d[f"{s}_{kind}_{sg.ROWS[r]}"] = {"rms": float(np.sqrt(np.mean(f.resid[m] ** 2))),
+                                                         "rms_over_sigma": float(np.sqrt(np.mean((f.resid[m] / sig[m]) ** 2))),
+                                                         "unit": prob.geom.units_out[s]}
+        rms[name] = d
+    nb = len(prob.base_names)
+    se_b = np.sqrt(np.diag(base.cov)[:nb])
+    th0 = prob.base_theta if prob.kind == "norm" else np.zeros(nb)
+    moved = [{"name": nm, "before": float(th0[i] + base.theta[i]), "after": float(th0[i] + final.theta[i]),
+              "se_before": float(se_b[i]),
+              "moved_by_se": float((final.theta[i] - base.theta[i]) / se_b[i]) if se_b[i] > 0 else 0.0}
+             for i, nm in enumerate(prob.base_names)]
+    verdict, reason = "adequate", "the base model fits within the noise and no candidate term passes the tests"
+    if found:
+        verdict = "missing_physics"
+        reason = "terms beyond the base model are needed: " + ", ".join(f["key"] for f in found)
+    elif base.p < st["chi2_p_adequate"]:
+        verdict = "missing_physics"
+        reason = (f"the base model does not fit (chi2 p = {base.p:.2g}) and no term of the library explains the "
+                  "misfit: see 'locate'")
+    separations = []
+    if prob.kind == "vector" and "latitude_error" in testable_keys(prob) and "gyro_g_sensitivity/gyro" in testable_keys(prob):
+        rot_rows = np.flatnonzero(np.array([prob.geom.windows[w].kind == "rotation" for w in o["window"]])
+                                  & (o["row"] == 0))
+        info_r, ang_r = library_geometry(prob, rows=rot_rows)
+        am = {frozenset((a, b)): v for a, b, v in ang_r}
+        separations.append({
+            "pair": ["latitude_error", "gyro_g_sensitivity/gyro"],
+            "angle_deg_all_segments": ang_map.get(frozenset(("latitude_error", "gyro_g_sensitivity/gyro"))),
+            "angle_deg_rotation_means_only": am.get(frozenset(("latitude_error", "gyro_g_sensitivity/gyro"))),
+            "absorbed_fraction_rotation_means_only": {k: info_r[k]["absorbed_fraction"] for k in
+                                                      ("latitude_error", "gyro_g_sensitivity/gyro") if k in info_r},
+            "separating_segments_latitude": _separating_segments(prob, "latitude_error", "gyro_g_sensitivity/gyro"),
+            "separating_segments_g_sensitivity": _separating_segments(prob, "gyro_g_sensitivity/gyro",
+                                                                      "latitude_error"),
+            "note": ("on the rotation means alone the gyro bias, the g-sensitivity and a latitude error all add a "
+                     "constant vector per rotation axis; the static positions (g-sensitivity: pattern with the "
+                     "gravity direction; latitude: tilt of the Earth-rate direction, scale pinned by the rotations) "
+                     "and the table-angle harmonics (Earth-rate magnitude Omega cos L) separate them")})
+    return {
+        "verdict": verdict, "verdict_reason": reason,
+        "goodness_of_fit": gof,
+        "locate": locate(prob, base),
+        "identifiability": {"candidates": info, "pairwise_angles_deg": [
+            {"a": a, "b": b, "angle_deg": v} for a, b, v in sorted(angles, key=lambda x: x[2]) if np.isfinite(v)],
+            "alias_groups_geometric": groups, "separations": separations},
+        "selection": {"steps": steps, "last_step_candidates": [{k: v for k, v in r.items() if k != "fit"}
+                                                               for r in table]},
+        "found": found,
+        "absent": _absent(prob, final, table),
+        "untestable": _untestable(prob),
+        "base_parameters": moved,
+        "residual_rms": rms,
+        "_fits": (base, final),
+    }
+
+
+# =====================================================================================================
+# report files
+# =====================================================================================================
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating,)):
+        v = float(o)
+        return v if math.isfinite(v) else None
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.bool_,)):
+        return bool(o)
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def _clean_json(o):
+    """Replace non-finite floats by None (strict JSON) recursively."""
+    if isinstance(o, dict):
+        return {str(k): _clean_json(v) for k, v in o.items() if not str(k).startswith("_")}
+    if isinstance(o, (list, tuple)):
+        return [_clean_json(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        v = float(o)
+        return v if math.isfinite(v) else None
+    if isinstance(o, np.ndarray):
+        return _clean_json(o.tolist())
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.bool_,)):
+        return bool(o)
+    return o
+
+
+def write_text_atomic(path, text: str) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def write_json_atomic(obj, path) -> Path:
+    return write_text_atomic(path, json.dumps(_clean_json(obj), indent=2, default=_json_default) + "\n")
+
+
+def _fmt(v, nd=4):
+    if v is None:
+        return "n/a"
+    try:
+        return f"{v:.{nd}g}"
+    except (TypeError, ValueError):
+        return str(v)
+
+
+def report_markdown(rep: dict) -> str:
+    """Plain-words report."""
+    L = [f"# Mismatch diagnosis: {Path(rep.get('recording', '')).name}", ""]
+    L.append(f"**Verdict: {rep['verdict']}** -- {rep.get('verdict_reason', '')}")
+    L.append("")
+    if rep["verdict"] == "inconclusive":
+        if rep.get("fix"):
+            L.append(f"What would fix it: {rep['fix']}")
+        return "\n".join(L) + "\n"
+    L.append(f"Model: {rep.get('model_description', rep.get('model'))}")
+    L.append(f"Noise: {rep.get('noise', {}).get('method', '')}")
+    L.append("")
+    g = rep["goodness_of_fit"]
+    L.append("## Goodness of fit")
+    L.append("")
+    L.append("| model | chi2 | dof | p |")
+    L.append("|---|---|---|---|")
+    for k in ("before", "after"):
+        L.append(f"| {k} | {_fmt(g[k]['chi2'])} | {g[k]['dof']} | {_fmt(g[k]['p'], 3)} |")
+    L.append("")
+    L.append("Per sensor axis (before): " + "; ".join(
+        f"{b['sensor']} {b['axis']}: {_fmt(b['chi2'])} on {b['n_obs']}" for b in g["before"]["by_sensor_axis"]))
+    L.append("")
+    L.append("## Where the misfit lives (base model)")
+    L.append("")
+    summ = rep.get("locate", {}).get("summary", [])
+    L += [f"- {t}" for t in summ] if summ else ["- nothing stands out above the noise"]
+    L.append("")
+    L.append("## Found")
+    L.append("")
+    if not rep["found"]:
+        L.append("Nothing: no candidate term passes the BIC and likelihood-ratio tests.")
+    for f in rep["found"]:
+        al = ", ".join(f"{a['key']} (dBIC {a['delta_bic_vs_found']:.1f})" for a in f["aliases"]) or "none"
+        L.append(f"### {f['effect']} ({f['sensor']}), BIC gain {_fmt(f['delta_bic'])}, LRT p = {_fmt(f['p_lrt'], 3)}")
+        L.append("")
+        L.append(f"Aliases (fit as well, within {rep['settings']['alias_delta_bic']:g} of BIC, or signature angle < "
+                 f"{rep['settings']['alias_angle_deg']:g} deg): {al}")
+        L.append("")
+        L.append("| parameter | value | 95 % interval | unit |")
+        L.append("|---|---|---|---|")
+        for p in f["parameters"]:
+            L.append(f"| {p['name']} | {_fmt(p['value'], 5)} | [{_fmt(p['ci95'][0], 5)}, {_fmt(p['ci95'][1], 5)}] "
+                     f"| {p['unit']} |")
+        if f.get("tau_s"):
+            L.append(f"| tau (profiled) | {f['tau_s']:g} | -- | s |")
+        if f.get("undetermined_parameters"):
+            L.append("")
+            L.append("Not determined by this path: " + ", ".join(f["undetermined_parameters"]))
+        L.append("")
+    L.append("## Tested and absent (95 % upper bounds)")
+    L.append("")
+    for a in rep["absent"]:
+        b = "; ".join(f"|{x['name']}| < {_fmt(x['upper_bound_abs'], 3)} {x['unit']}" for x in a["upper_bound_95"])
+        L.append(f"- {a['key']}: {b}")
+    L.append("")
+    L.append("## Untestable on this recording")
+    L.append("")
+    for u in rep["untestable"]:
+        L.append(f"- **{u['key']}**: {u['why']}. Experiment that would make it testable: {u['experiment']}")
+    L.append("")
+    sep = rep.get("identifiability", {}).get("separations", [])
+    if sep:
+        L.append("## Separating look-alikes")
+        L.append("")
+        for s_ in sep:
+            L.append(f"- {s_['pair'][0]} vs {s_['pair'][1]}: signature angle {_fmt(s_['angle_deg_all_segments'], 3)} deg "
+                     f"with every segment, {_fmt(s_['angle_deg_rotation_means_only'], 3)} deg on the rotation means "
+                     f"alone. Segments that separate them: "
+                     + ", ".join(f"{x['segment']} ({100 * x['share']:.0f} %)" for x in s_["separating_segments_latitude"]))
+            L.append(f"  {s_['note']}")
+        L.append("")
+    L.append("## Residual RMS (output units)")
+    L.append("")
+    L.append("| observation | before | after | unit |")
+    L.append("|---|---|---|---|")
+    for k, v in rep["residual_rms"]["before"].items():
+        a = rep["residual_rms"]["after"].get(k, {})
+        L.append(f"| {k} | {_fmt(v['rms'])} | {_fmt(a.get('rms'))} | {v['unit']} |")
+    L.append("")
+    mv = [b for b in rep["base_parameters"] if abs(b["moved_by_se"]) > 2]
+    L.append("## Base parameters that moved by more than 2 standard errors")
+    L.append("")
+    L += [f"- {b['name']}: {_fmt(b['before'], 8)} -> {_fmt(b['after'], 8)} ({b['moved_by_se']:+.1f} se)" for b in mv] \
+        or ["- none"]
+    L.append("")
+    if rep.get("figures"):
+        L.append("## Figures")
+        L.append("")
+        L += [f"![{Path(f).stem}]({Path(f).name})" for f in rep["figures"]]
+    return "\n".join(L) + "\n"
+
+
+def residual_figure(prob: Problem, fits, path, title=""):
+    """Standardised residuals (residual / sigma) per segment before and after, per sensor axis and row."""
+    import matplotlib.pyplot as plt
+
+    from . import figures
+
+    g, o = prob.geom, prob.geom.obs
+    sig = prob.sigma()
+    base, final = fits
+    rows = sorted({(si, r) for si, r in zip(o["sensor"], o["row"])})
+    fig, axs = plt.subplots(len(rows), 1, figsize=(10, 2.2 * len(rows)), sharex=True, squeeze=False)
+    labels = [w.label for w in g.windows]
+    for ax, (si, r) in zip(axs[:, 0], rows):
+        for a, col in zip(range(3), ("C0", "C1", "C2")):
+            m = (o["sensor"] == si) & (o["row"] == r) & (o["axis"] == a)
+            x = o["window"][m] + (a - 1) * 0.22
+            ax.plot(x, base.resid[m] / sig[m], "o", mfc="none", color=col, ms=4,
+                    label=f"{AXES[a]} before" if r == 0 else None)
+            ax.plot(x, final.resid[m] / sig[m], ".", color=col, ms=5, label=f"{AXES[a]} after" if r == 0 else None)
+        ax.axhline(0, color="k", lw=0.5)
+        for k in (-3, 3):
+            ax.axhline(k, color="k", lw=0.5, ls=":")
+        name = "norm residual" if prob.kind == "norm" else f"{SENSORS[si]} {sg.ROWS[r]}"
+        ax.set_ylabel(f"{name}\n(residual / sigma)")
+    axs[0, 0].legend(ncol=6, fontsize=7, loc="upper right")
+    axs[-1, 0].set_xticks(range(len(labels)))
+    axs[-1, 0].set_xticklabels(labels, rotation=90, fontsize=6)
+    fig.suptitle(title or "residuals before (open) and after (filled) the selected terms")
+    fig.tight_layout()
+    return figures.save(fig, path)
+
+
+def allan_figure(prob: Problem, path):
+    import matplotlib.pyplot as plt
+
+    from . import figures
+
+    fig, axs = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, s in zip(axs, SENSORS):
+        A = (prob.noise.allan.get(s) if prob.noise is not None else
+             (prob.__dict__.get("norm_allan") if s == "accel" else None))
+        if A is None:
+            ax.set_visible(False)
+            continue
+        for a in range(3):
+            ax.loglog(A.tau, A.adev[:, a], "o-", ms=3, label=f"{AXES[a]}")
+        ax.set_xlabel("tau [s]")
+        ax.set_ylabel(f"Allan deviation [{A.unit}]")
+        ax.set_title(f"{s} (pooled static segments)")
+        ax.legend()
+    fig.tight_layout()
+    return figures.save(fig, path)
+
+
+def _report_header(path, st):
+    return {"format": REPORT_FORMAT, "recording": str(path), "settings": {k: v for k, v in st.items()},
+            "library": sorted({eid for eid in __import__("calib.effects", fromlist=["REGISTRY"]).REGISTRY})}
+
+
+def inconclusive_report(path, st, reason, fix="") -> dict:
+    rep = _report_header(path, st)
+    rep.update({"verdict": "inconclusive", "verdict_reason": reason, "fix": fix, "found": [], "absent": [],
+                "untestable": [], "figures": []})
+    return rep
+
+
+def build_report(prob: Problem, res: dict, path, st, figures_dir=None) -> dict:
+    rep = _report_header(path, st)
+    g = prob.geom
+    rep.update({
+        "source": str(prob.__dict__.get("source_kind", "")),
+        "model": prob.kind,
+        "model_description": (
+            "vector model N = M x + b per triad (M = K E, seed 000 eqs. 1-4) with the inputs known from the nominal "
+            "attitudes and the table rate/angle; 24 parameters, all identified"
+            if prob.kind == "vector" else
+            "accelerometer norm model (seed 000 eq. 7) in the identified lower-triangular form (9 parameters); "
+            "the recording has no nominal attitudes, so only what the gravity norm sees can be tested"),
+        "site": {"latitude_deg": g.latitude_deg, "height_m": g.height_m, "gravity_m_s2": g.gravity_m_s2,
+                 "gravity_source": g.gravity_source},
+        "observations": {"n": prob.n, "static_segments": len(g.static), "rotation_segments": len(g.rotation),
+                         "units_out": g.units_out, "units_in": g.units_in, "notes": g.notes},
+        "noise": _noise_summary(prob),
+    })
+    rep.update({k: v for k, v in res.items() if not k.startswith("_")})
+    figs = []
+    if figures_dir is not None and st.get("figures", True):
+        figs.append(str(residual_figure(prob, res["_fits"], Path(figures_dir) / "residuals_before_after.png")))
+        figs.append(str(allan_figure(prob, Path(figures_dir) / "allan_deviation.png")))
+    rep["figures"] = figs
+    return rep
+
+
+def _noise_summary(prob: Problem) -> dict:
+    nz = prob.noise
+    if nz is None:
+        return {"method": prob.__dict__.get("noise_method", ""),
+                "reduced_chi2_base": prob.__dict__.get("overdispersion")}
+    out = {"method": nz.method, "per_sensor_axis": []}
+    for s in SENSORS:
+        for a in range(3):
+            tc, sig = nz.slow[s][a]
+            out["per_sensor_axis"].append({
+                "sensor": s, "axis": AXES[a], "unit": nz.allan[s].unit, "N_white": float(nz.N[s][a]),
+                "Q_quantisation": float(nz.Q[s][a]), "level_scale_from_residuals": float(nz.scale[s][a]),
+                "slow": nz.describe(s, a), "slow_tc_s": None if math.isinf(tc) else tc, "slow_sigma": sig,
+                "sigma_of_60s_mean_white": float(nz.N[s][a] / math.sqrt(60.0))})
+    return out
+
+
+def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=None):
+    """Diagnose an in-memory recording. Returns (report dict, Problem or None). Writes files when
+    ``out_dir`` is given."""
+    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    from .recording import RecordingError
+    from .segments import SegmentError
+
+    t0 = time.perf_counter()
+    prob = None
+    try:
+        if "nominal_attitude" in ds or (library_from is not None and library_from.kind == "vector"):
+            prob = setup_problem(ds, st, library_from=library_from)
+        else:
+            prob = setup_norm_problem(ds, st)
+        rank = np.linalg.matrix_rank(prob.whiten(prob.X0))
+        if rank < prob.X0.shape[1]:
+            raise DiagnosisInputError(f"the base calibration failed: its design has rank {rank} of "
+                                      f"{prob.X0.shape[1]} (the positions do not determine every parameter)",
+                                      "add static positions that point each axis up and down")
+        res = analyse(prob)
+        if not np.isfinite(res["goodness_of_fit"]["before"]["chi2"]):
+            raise DiagnosisInputError("the base calibration failed: non-finite chi-square")
+        rep = build_report(prob, res, path, st, figures_dir=out_dir)
+    except DiagnosisInputError as exc:
+        rep = inconclusive_report(path, st, exc.reason, exc.fix)
+    except (RecordingError, SegmentError) as exc:
+        rep = inconclusive_report(path, st, str(exc))
+    except (np.linalg.LinAlgError, FloatingPointError) as exc:
+        rep = inconclusive_report(path, st, f"the base calibration failed numerically ({exc})",
+                                  "check the recording for dead channels or segments with the same attitude")
+    rep["elapsed_s"] = time.perf_counter() - t0
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        write_json_atomic(rep, out_dir / "report.json")
+        write_text_atomic(out_dir / "report.md", report_markdown(rep))
+    return rep, prob
+
+
+def diagnose_recording(path, out_dir, settings=None) -> dict:
+    """``calib diagnose RECORDING.nc --out DIR``: writes DIR/report.json, DIR/report.md and figures.
+
+    Works on any ``calib-recording-1`` file with a segment table (synthetic or imported; an imported
+    recording without one gets static segments from :func:`calib.detect.detect_in_recording`). Bad input
+    (unreadable file, too short, too few segments, failed calibration, no noise estimate) gives a report
+    with verdict ``inconclusive`` and the reason -- never a finding.
+    """
+    from . import recording
+    from .recording import RecordingError
+
+    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    try:
+        ds = recording.load(path)
+    except (RecordingError, OSError, ValueError) as exc:
+        rep = inconclusive_report(path, st, f"cannot read the recording: {exc}",
+                                  "give a valid calib-recording-1 file")
+        write_json_atomic(rep, Path(out_dir) / "report.json")
+        write_text_atomic(Path(out_dir) / "report.md", report_markdown(rep))
+        return rep
+    if "segment_index" not in ds:
+        try:
+            from . import detect
+
+            det = detect.detect_in_recording(ds)
+            ds = detect.add_segment_table(ds, det)
+        except Exception as exc:  # noqa: BLE001 - any detection failure is an inconclusive input
+            rep = inconclusive_report(path, st, f"no segment table and static detection failed: {exc}",
+                                      "add a segment table (segment_index, segment_kind)")
+            write_json_atomic(rep, Path(out_dir) / "report.json")
+            write_text_atomic(Path(out_dir) / "report.md", report_markdown(rep))
+            return rep
+    rep, _ = diagnose_dataset(ds, out_dir, st, path=path)
+    return rep
+
+
+# =====================================================================================================
+# norm model (recordings without nominal attitudes: real data)
+# =====================================================================================================
+NORM_EFFECTS = [("accel_quadratic_nonlinearity", [("k2_ug_per_g2", "vec")]),
+                ("accel_cubic_nonlinearity", [("k3_ug_per_g3", "vec")]),
+                ("accel_scale_asymmetry", [("asym_ppm", "vec")]),
+                ("accel_cross_coupling", [("k_cross_ug_per_g2", "offdiag")]),
+                ("temperature_sensitivity", [("accel_bias_ug_per_degC", "vec"), ("accel_scale_ppm_per_degC", "vec")])]
+
+
+def _norm_initial(N, ref):
+    """Lower-triangular M and b from an algebraic ellipsoid fit of the static means: (N - b)^T (M M^T)^-1 (N - b)
+    = ref^2."""
+    c0 = N.mean(axis=0)
+    s0 = float(np.max(np.abs(N - c0))) or 1.0
+    z = (N - c0) / s0
+    x, y, w = z.T
+    A = np.column_stack([x * x, y * y, w * w, 2 * x * y, 2 * x * w, 2 * y * w, x, y, w])
+    coef, *_ = np.linalg.lstsq(A, np.ones(len(z)), rcond=None)
+    Qm = np.array([[coef[0], coef[3], coef[4]], [coef[3], coef[1], coef[5]], [coef[4], coef[5], coef[2]]])
+    c = -0.5 * np.linalg.solve(Qm, coef[6:9])
+    Qn = Qm / (1.0 + c @ Qm @ c)
+    if np.any(np.linalg.eigvalsh(Qn) <= 0):
+        raise DiagnosisInputError("the static means do not lie on an ellipsoid: the norm calibration failed",
+                                  "record static positions spread over all orientations")
+    MMt = np.linalg.inv(Qn / s0**2 * ref**2)
+    return np.linalg.cholesky(MMt), c0 + s0 * c
+
+
+def setup_norm_problem(ds, settings=None) -> Problem:
+    """The accelerometer norm model (seed 000 eq. 7, lower-triangular form tri9) linearised at its solution:
+    observations are the norm residuals r_m = ref^2 - |M^-1 (N_m - b)|^2 of the static means, the base design
+    their Jacobian, the effect signatures -2 x^T M^-1 K dd/dphi (x = M^-1 (N - b), sensor-axis input
+    y = (N - b)/K, K_i = |row i of M|). Noise: white + quantisation of each mean from the Allan deviation,
+    propagated to r; if the base model's reduced chi-square exceeds 2, the sigmas are scaled by its square root
+    (the unexplained scatter is treated as noise) and the report says so."""
+    from scipy.optimize import least_squares
+
+    from . import effects
+    from . import objectives as ob
+
+    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    geom = sg.build_geometry(ds, max_offset_s=0.0, min_static=max(st["min_static"], 10))
+    if geom.n_samples / geom.fs < st["min_duration_s"]:
+        raise DiagnosisInputError(f"{geom.source}: recording lasts {geom.n_samples / geom.fs:.1f} s, less than "
+                                  f"{st['min_duration_s']:.0f} s", "record a longer session")
+    ya, _ = sg._rate_readings(ds, "accel")
+    if not np.all(np.isfinite(ya)):
+        raise DiagnosisInputError(f"{geom.source}: variable 'accel' holds NaN or Inf")
+    wins = geom.static
+    geom.windows = wins
+    Nm = np.array([ya[w.i0:w.i1].mean(axis=0) for w in wins])
+    T = np.array([w.n * geom.dt for w in wins])
+    recs = [ya[w.i0:w.i1] for w in wins]
+    from . import allan
+
+    try:
+        A = allan.adev_pooled(recs, geom.fs, unit=geom.units_out["accel"])
+    except allan.AllanError as exc:
+        raise DiagnosisInputError(f"{geom.source}: no noise estimate for 'accel' ({exc})",
+                                  "the static segments must hold varying samples (not flat data)") from exc
+    nm = A.noise_model(("Q", "N"))
+    if np.any(~(nm.N > 0)) and np.any(~(nm.Q > 0)):
+        raise DiagnosisInputError(f"{geom.source}: the accelerometer shows no noise in its static segments (flat "
+                                  "data?): sigma of the means cannot be estimated")
+    sigN = np.sqrt(nm.N[None, :] ** 2 / T[:, None] + 2.0 * nm.Q[None, :] ** 2 / T[:, None] ** 2)
+    iu = geom.units_in["accel"]
+    conv = sg._TO_MODEL[iu]
+    ref = geom.gravity_m_s2 / STANDARD_GRAVITY_ * conv
+    M0, b0 = _norm_initial(Nm, ref)
+    form = ob.Form("tri9")
+    th0 = form.from_KE_b(M0, b0)
+    obj = ob.NormObjective(Nm, ref, form="tri9", sigma=sigN)
+    obj.weighted = True
+    obj.set_weights(th0)
+    sol = least_squares(obj.residuals, th0, jac=obj.jacobian, method="lm", xtol=1e-14, ftol=1e-14)
+    th = sol.x
+    obj.set_weights(th)
+    sol = least_squares(obj.residuals, th, jac=obj.jacobian, method="lm", xtol=1e-14, ftol=1e-14)
+    th = sol.x
+    obj.weighted = False
+    r0 = obj.residuals(th)
+    J = obj.jacobian(th)
+    sr = obj.residual_sigma(th)
+    M, b = form.KE_b(th)
+    Kd = np.linalg.norm(M, axis=1)
+    xh = np.linalg.solve(M, (Nm - b).T).T
+    yin = (Nm - b) / Kd                       # sensor-axis input [model input unit]
+    G = -2.0 * np.linalg.solve(M.T, xh.T).T * (Kd * conv)[None, :]   # dr/dd per segment (m, 3), d in g
+    # per-window nodes for time-dependent terms
+    ts, temps, owner = [], [], []
+    for j, w in enumerate(wins):
+        idx = sg._nodes(geom, w)
+        ts.append(geom.time_s[w.i0 + idx] + 0.5 * geom.dt)
+        if geom.temperature is not None:
+            temps.append(geom.temperature[w.i0 + idx])
+        owner.append(np.full(idx.size, j))
+    t = np.concatenate(ts)
+    owner = np.concatenate(owner)
+    cnt = np.bincount(owner)
+    yreg = yin[owner] / conv
+    temp = np.concatenate(temps) if temps else np.full(t.shape, 25.0)
+    E_id = np.eye(3)
+    ctx = effects.SensorContext(t, yreg, np.zeros_like(yreg), yreg, np.zeros_like(yreg), np.zeros_like(yreg),
+                                np.zeros_like(yreg), temp, E_id, E_id)
+
+    def col(eid, p):
+        da, _ = effects.REGISTRY[eid].apply(ctx, p)
+        dm = np.zeros((len(wins), 3))
+        np.add.at(dm, owner, da)
+        dm /= cnt[:, None]
+        return np.sum(G * dm, axis=1)
+
+    m = len(wins)
+    geom.obs = {"sensor": np.zeros(m, int), "axis": np.zeros(m, int), "window": np.arange(m), "row": np.zeros(m, int),
+                "n": m, "blocks": {(0, 0): np.arange(m)}}
+    lib = []
+    temp_ok = geom.temperature is not None and float(np.ptp(temp)) > 0.05
+    for eid, layout in NORM_EFFECTS:
+        names, units, axes_, cols, keys = [], [], [], [], []
+        for key, kind in layout:
+            entries = ([(i,) for i in range(3)] if kind == "vec" else
+                       [(i, j) for i in range(3) for j in range(3) if i != j])
+            for e in entries:
+                p = sg._zero_params(eid)
+                arr = np.zeros(np.shape(effects.REGISTRY[eid].defaults[key]))
+                arr[e] = 1.0
+                p[key] = arr.tolist()
+                cols.append(col(eid, p))
+                names.append(key + "[" + ",".join(AXES[i] for i in e) + "]")
+                units.append(effects.REGISTRY[eid].units.get(key, ""))
+                axes_.append(AXES[e[0]])
+                keys.append((key, e))
+        c = sg.Candidate(eid, "accel", names, units, axes_, np.column_stack(cols), keys=keys)
+        if eid == "temperature_sensitivity" and not temp_ok:
+            c.untestable, c.experiment = sg.EXPERIMENTS["temperature_sensitivity"]
+        lib.append(c)
+    # bias drift of the accelerometer
+    unit_of = effects.REGISTRY["bias_drift"].units
+    names = [f"accel_warmup_ug[{a}]" for a in AXES] + [f"accel_trend_ug_per_h[{a}]" for a in AXES]
+    c = sg.Candidate("bias_drift", "accel", names, [unit_of["accel_warmup_ug"]] * 3 + [unit_of["accel_trend_ug_per_h"]] * 3,
+                     list(AXES) * 2, kind="drift", keys=[("accel_warmup_ug", (i,)) for i in range(3)]
+                     + [("accel_trend_ug_per_h", (i,)) for i in range(3)])
+    trend = []
+    for i in range(3):
+        p = sg._zero_params("bias_drift")
+        v = [0.0] * 3
+        v[i] = 1.0
+        p["accel_trend_ug_per_h"] = v
+        trend.append(col("bias_drift", p))
+    for tau in sg.DRIFT_TAUS:
+        cols = []
+        for i in range(3):
+            p = sg._zero_params("bias_drift")
+            v = [0.0] * 3
+            v[i] = 1.0
+            p["accel_warmup_ug"] = v
+            p["accel_tau_s"] = tau
+            cols.append(col("bias_drift", p))
+        c.S_by_tau[tau] = np.column_stack(cols + trend)
+    c.S = c.S_by_tau[900.0]
+    lib.append(c)
+    g_col = np.full(m, 2.0 * ref * (ref / geom.gravity_m_s2))           # dr/d(delta g)
+    lib.append(sg.Candidate("gravity_error", "site", ["delta_g_m_s2"], ["m s-2"], [""], g_col[:, None],
+                            keys=[("delta_g_m_s2", ())]))
+    for eid, sensor, reason in (("latitude_error", "site", "latitude_error_norm"),
+                                ("time_offset", "clock", "time_offset"),
+                                ("accel_lever_arm", "accel", "accel_lever_arm"),
+                                ("gyro_g_sensitivity", "gyro", "gyro_norm"),
+                                ("gyro_scale_asymmetry", "gyro", "gyro_norm"),
+                                ("gyro_scale_nonlinearity", "gyro", "gyro_norm"),
+                                ("bias_drift", "gyro", "gyro_norm"),
+                                ("temperature_sensitivity", "gyro", "gyro_norm")):
+        cc = sg.Candidate(eid, sensor, [], [], [], np.zeros((m, 0)))
+        cc.untestable, cc.experiment = sg.EXPERIMENTS[reason]
+        lib.append(cc)
+    chi0 = float(np.sum((r0 / sr) ** 2))
+    dof0 = m - 9
+    over = chi0 / dof0 if dof0 > 0 else float("inf")
+    scale = math.sqrt(over) if over > 2.0 else 1.0
+    Ls = {(0, 0): np.diag(sr * scale)}
+    noise_method = ("white noise and quantisation of each static mean from the Allan deviation pooled over the "
+                    "static segments (N^2/T + 2Q^2/T^2), propagated to the norm residuals")
+    if scale > 1.0:
+        noise_method += (f"; the base model's reduced chi-square is {over:.3g}, so every sigma is scaled by "
+                         f"{scale:.3g} (scatter beyond the sensor noise -- hand placement, vibration, unmodelled "
+                         "physics -- is treated as noise: findings are hypotheses)")
+    prob = Problem(geom, r0, None, None, Ls, J, lib, {"accel": ya}, n_noise_params=1 if scale > 1 else 0,
+                   settings=st, kind="norm", base_names=tuple(f"accel:{n}" for n in form.names))
+    prob.base_theta = th
+    prob.noise_method = noise_method
+    prob.overdispersion = over
+    prob.norm_allan = A
+    _prepare_library(prob)
+    return prob

@@ -56,7 +56,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg
+from scipy import linalg, optimize
 from scipy.interpolate import CubicSpline
 
 from . import allan, earth, effects
@@ -372,6 +372,19 @@ def stack_fast(geom: Geometry, red: dict) -> np.ndarray:
     return np.concatenate(parts)
 
 
+def pulse_counter_channels(ds) -> dict:
+    """Sensors whose samples are integer counts per sample (a pulse counter: quantisation known)."""
+    out = {}
+    for s in SENSORS:
+        v = ds[s]
+        ok = v.attrs.get("sample_kind") == "increment" and v.attrs.get("units") == "count"
+        if ok:
+            head = np.asarray(v.values[:2000], dtype=float)
+            ok = bool(np.all(np.mod(head, 1.0) == 0.0))
+        out[s] = ok
+    return out
+
+
 def reduce_data(geom: Geometry, ds) -> tuple[np.ndarray, dict]:
     """Observation vector of the recording's rate readings, and the readings themselves per sensor."""
     y = {}
@@ -408,16 +421,21 @@ class NoiseFit:
         return f"Gauss-Markov bias sigma = {sig:.4g} {self.allan[sensor].unit}, Tc = {tc:g} s"
 
 
-#: correlation times tried for the slow part of the noise [s] (inf = random walk)
-SLOW_TCS = (30.0, 60.0, 120.0, 300.0, 600.0, 1200.0, 3000.0, 10000.0, math.inf)
+#: correlation times tried for the slow part of the noise [s]. Slower variations are, by convention, bias
+#: drift: a Gauss-Markov bias with a correlation time beyond the session cannot be told from a drift
+SLOW_TCS = (30.0, 60.0, 120.0, 300.0, 600.0)
 
 
-def fit_noise(geom: Geometry, y: dict) -> NoiseFit:
-    """Allan deviation pooled over the static windows; quantisation Q and white noise N per axis from the
-    model 3Q^2/tau^2 + N^2/tau + K^2 tau/3 fitted by NNLS (``allan.AllanResult.noise_model``). Those two
-    dominate every tau a static segment supports; the slow part (bias instability) is estimated afterwards
-    from the spread of the segment means themselves (:func:`reml_slow`)."""
+def fit_noise(geom: Geometry, y: dict, pulse_counter: dict | None = None) -> NoiseFit:
+    """Shape of the fast noise from the Allan deviation pooled over the static windows:
+    AVAR = 3Q^2/tau^2 + N^2/tau + K^2 tau/3 fitted by NNLS with weights from the equivalent degrees of
+    freedom. For pulse-counter data (integer counts per sample, remainder carried: ``pulse_counter[s]``) the
+    quantisation is known, Q = 1/sqrt(12) count (the carried remainder is uniform in [0, 1)), and N, K are
+    fitted to tau >= 1 s (where the carry has mixed). The overall level of the fast part and the slow part
+    (bias instability) are then estimated from the spread of the segment means themselves
+    (:func:`reml_slow`)."""
     res, Q, N, slow = {}, {}, {}, {}
+    pulse_counter = pulse_counter or {}
     for s in SENSORS:
         recs = [y[s][w.i0:w.i1] for w in geom.static]
         try:
@@ -425,18 +443,42 @@ def fit_noise(geom: Geometry, y: dict) -> NoiseFit:
         except allan.AllanError as exc:
             raise DiagnosisInputError(f"{geom.source}: no noise estimate for '{s}' ({exc})",
                                       "the static segments must hold varying samples (not flat data)") from exc
-        m = A.noise_model(("Q", "N", "K"))
-        Q[s], N[s] = m.Q.copy(), m.N.copy()
-        slow[s] = [(math.inf, float(m.K[a])) for a in range(3)]
+        if pulse_counter.get(s):
+            q = 1.0 / math.sqrt(12.0)
+            sel = A.tau >= 1.0
+            if sel.sum() < 3:
+                sel = np.ones_like(A.tau, dtype=bool)
+            tau, edf = A.tau[sel], A.edf[sel]
+            B = np.column_stack([1.0 / tau, tau / 3.0])
+            Nq, Kq = np.zeros(3), np.zeros(3)
+            for a in range(3):
+                av = A.avar[sel, a] - 3.0 * q**2 / tau**2
+                w = np.sqrt(edf / 2.0) / A.avar[sel, a]
+                c, _ = optimize.nnls(B * w[:, None], av * w)
+                for _ in range(2):
+                    w = np.sqrt(edf / 2.0) / np.maximum(B @ c + 3.0 * q**2 / tau**2, 1e-300)
+                    c, _ = optimize.nnls(B * w[:, None], av * w)
+                Nq[a], Kq[a] = math.sqrt(c[0]), math.sqrt(c[1])
+            Q[s], N[s] = np.full(3, q), Nq
+            slow[s] = [(math.inf, float(Kq[a])) for a in range(3)]
+        else:
+            m = A.noise_model(("Q", "N", "K"))
+            Q[s], N[s] = m.Q.copy(), m.N.copy()
+            slow[s] = [(math.inf, float(m.K[a])) for a in range(3)]
         if np.any(~(N[s] > 0)):
             raise DiagnosisInputError(f"{geom.source}: '{s}' white-noise level is zero (flat data?)",
                                       "check the channel; a noise-free channel gives no chi-square")
         res[s] = A
-    return NoiseFit(res, Q, N, slow, method=(
-        "white noise N and quantisation Q from the Allan deviation pooled over the static segments (model "
-        "3Q^2/tau^2 + N^2/tau + K^2 tau/3, NNLS); the slow part of the window means (bias instability: a "
-        "Gauss-Markov bias, correlation time profiled on a grid, or a random walk) by restricted maximum "
-        "likelihood from the base-model residuals, once, before any term is tested"))
+    nf = NoiseFit(res, Q, N, slow, method=(
+        "shape of the fast noise (white N, quantisation Q) from the Allan deviation pooled over the static "
+        "segments (3Q^2/tau^2 + N^2/tau + K^2 tau/3, NNLS; Q = 1/sqrt(12) count for pulse-counter data); its level "
+        "and the slow part of the window means (a Gauss-Markov bias instability, correlation time profiled on a "
+        "grid <= 600 s) by restricted maximum likelihood from the contrasts orthogonal to the base model and the "
+        "library's attitude-, rate- and angle-dependent terms, once, before any term is tested"))
+    nf.scale = {s: np.ones(3) for s in SENSORS}
+    nf.N_shape = {s: N[s].copy() for s in SENSORS}
+    nf.Q_shape = {s: Q[s].copy() for s in SENSORS}
+    return nf
 
 
 def gm_part(geom: Geometry, sensor: str, tc: float):
@@ -485,58 +527,77 @@ def slow_structure(parts, geom, sensor, tc, cache=None):
     return A
 
 
-def reml_slow(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS):
-    """Restricted-ML estimate of the slow noise per (sensor, axis) block from the error contrasts orthogonal
-    to the fixed-effect design ``X`` (the diagnosis passes the base model *and every candidate term*, so the
-    estimate is not inflated by any effect of the library), with Q and N fixed: sigma^2 on a log grid (plus 0) for each correlation time in ``tcs``;
-    the best (Tc, sigma) is stored in ``noise.slow``. Uses C = C0 + s^2 A = L (I + s^2 V Lam V^T) L^T, so every
-    s^2 costs O(m) after one eigendecomposition per Tc."""
+def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS, *, blocks=None,
+                  method: str = "reml", update: bool = True):
+    """Profile likelihood of the noise per (sensor, axis) block given the fixed-effect design ``X``:
+
+        C = lam (C_fast + rho A_GM(Tc)),   C_fast = N^2 A_N + Q^2 A_Q  (shape from the Allan fit)
+
+    ``lam`` profiled analytically, ``rho`` on a log grid (plus 0) for every Tc in ``tcs`` (C_fast = L L^T,
+    L^-1 A L^-T = V Lam V^T, so every rho costs O(m)). ``method='reml'``: restricted likelihood of the error
+    contrasts orthogonal to X (the noise estimate); ``'ml'``: the full likelihood (to compare designs).
+    The slow part is kept only when it beats rho = 0 by a BIC margin (2 parameters).
+    Returns {(sensor index, axis): (-2 log L up to a constant shared by all designs, lam, Tc, sigma_slow)};
+    with ``update`` the noise model is set to the optimum."""
     cache = {} if cache is None else cache
     out = {}
-    for si, s in enumerate(SENSORS):
+    keys = blocks if blocks is not None else [(si, a) for si in range(2) for a in range(3)]
+    for si, a in keys:
+        s = SENSORS[si]
         AN, AQ, _ = parts[s]
-        for a in range(3):
-            idx = geom.obs["blocks"][(si, a)]
-            Xb = X[idx]
-            Xb = Xb[:, np.any(Xb != 0, axis=0)]
-            yb = y[idx]
-            C0 = noise.N[s][a] ** 2 * AN + noise.Q[s][a] ** 2 * AQ
-            L0 = np.linalg.cholesky(C0)
-            ld0 = 2.0 * np.sum(np.log(np.diag(L0)))
-            X1 = linalg.solve_triangular(L0, Xb, lower=True)
-            # an orthonormal basis of the (whitened) fixed-effect space: REML only needs the space
-            U, sv, _ = np.linalg.svd(X1, full_matrices=False)
-            X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
-            y1 = linalg.solve_triangular(L0, yb, lower=True)
-            best = (np.inf, math.inf, 0.0)
-            nll0 = None
-            for tc in tcs:
-                A = slow_structure(parts, geom, s, tc, cache)
-                B = linalg.solve_triangular(L0, linalg.solve_triangular(L0, A, lower=True).T, lower=True)
-                lam, V = np.linalg.eigh(0.5 * (B + B.T))
-                lam = np.clip(lam, 0.0, None)
-                Xt, yt = V.T @ X1, V.T @ y1
-                scale = 1.0 / max(lam.max(), 1e-300)
-                s2 = np.concatenate([[0.0], scale * np.logspace(-5, 3, 81)])
-                d = 1.0 + s2[:, None] * lam[None, :]                      # (G, m)
-                w = 1.0 / d
-                XtWX = np.einsum("gm,mi,mj->gij", w, Xt, Xt)
-                XtWy = np.einsum("gm,mi,m->gi", w, Xt, yt)
-                yWy = np.einsum("gm,m->g", w, yt * yt)
-                sol = np.linalg.solve(XtWX, XtWy[..., None])[..., 0]
-                rr = yWy - np.einsum("gi,gi->g", sol, XtWy)
-                _, ldx = np.linalg.slogdet(XtWX)
-                nll = ld0 + np.sum(np.log(d), axis=1) + ldx + rr
-                nll0 = float(nll[0])
-                j = int(np.argmin(nll))
-                if nll[j] < best[0]:
-                    best = (float(nll[j]), tc, float(math.sqrt(s2[j])))
-            # keep a slow component only when it beats white noise alone by a BIC margin (2 parameters)
-            if nll0 is not None and nll0 - best[0] < 2.0 * math.log(len(idx)):
-                best = (nll0, math.inf, 0.0)
-            noise.slow[s][a] = (best[1], best[2])
-            out[(s, a)] = noise.slow[s][a]
+        idx = geom.obs["blocks"][(si, a)]
+        Xb = X[idx]
+        Xb = Xb[:, np.any(Xb != 0, axis=0)]
+        yb = y[idx]
+        C0 = noise.N_shape[s][a] ** 2 * AN + noise.Q_shape[s][a] ** 2 * AQ
+        L0 = np.linalg.cholesky(C0)
+        X1 = linalg.solve_triangular(L0, Xb, lower=True)
+        y1 = linalg.solve_triangular(L0, yb, lower=True)
+        U, sv, _ = np.linalg.svd(X1, full_matrices=False)
+        X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
+        m, p = X1.shape
+        nfree = m - p if method == "reml" else m
+        best = None
+        white = None
+        for tc in tcs:
+            A = slow_structure(parts, geom, s, tc, cache)
+            B = linalg.solve_triangular(L0, linalg.solve_triangular(L0, A, lower=True).T, lower=True)
+            lam, V = np.linalg.eigh(0.5 * (B + B.T))
+            lam = np.clip(lam, 0.0, None)
+            Xt, yt = V.T @ X1, V.T @ y1
+            scale = 1.0 / max(lam.max(), 1e-300)
+            rho = np.concatenate([[0.0], scale * np.logspace(-4, 3, 71)])
+            d = 1.0 + rho[:, None] * lam[None, :]
+            w = 1.0 / d
+            XtWX = np.einsum("gm,mi,mj->gij", w, Xt, Xt)
+            XtWy = np.einsum("gm,mi,m->gi", w, Xt, yt)
+            yWy = np.einsum("gm,m->g", w, yt * yt)
+            sol = np.linalg.solve(XtWX, XtWy[..., None])[..., 0]
+            rr = yWy - np.einsum("gi,gi->g", sol, XtWy)
+            lam_hat = rr / nfree
+            nll = nfree * np.log(lam_hat) + np.sum(np.log(d), axis=1)
+            if method == "reml":
+                nll = nll + np.linalg.slogdet(XtWX)[1]
+            if white is None:
+                white = (float(nll[0]), math.inf, 0.0, float(lam_hat[0]))
+            j = int(np.argmin(nll))
+            if best is None or nll[j] < best[0]:
+                best = (float(nll[j]), tc, float(rho[j]), float(lam_hat[j]))
+        if white[0] - best[0] < 2.0 * math.log(m):
+            best = white
+        nll_b, tc, rho_b, lam_b = best
+        out[(si, a)] = (nll_b, lam_b, tc, math.sqrt(lam_b * rho_b))
+        if update:
+            noise.scale[s][a] = lam_b
+            noise.N[s][a] = noise.N_shape[s][a] * math.sqrt(lam_b)
+            noise.Q[s][a] = noise.Q_shape[s][a] * math.sqrt(lam_b)
+            noise.slow[s][a] = (tc, math.sqrt(lam_b * rho_b))
     return out
+
+
+def reml_slow(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS):
+    """Noise level and slow part by restricted ML (:func:`profile_noise`), stored in ``noise``."""
+    return profile_noise(geom, noise, y, X, parts, cache, tcs, method="reml", update=True)
 
 
 def covariance_parts(geom: Geometry, sensor: str, rw_within_only: bool = False):

@@ -25,8 +25,9 @@ Kinds and what one point computes:
   norm determines) and of the biases against the simulated truth.
 * ``drift_pso`` (seed 001): ``tests`` PSOBE runs (test k uses seed ``seeds.drift + k``) on the first
   ``window_h`` hours; the Cramer-Rao bound of the drift for that window and noise; the minimiser of J (eq. 18)
-  polished by Nelder-Mead from the drift-only linear least squares, so the error of a PSO estimate splits
-  into the optimiser's part (estimate - argmin J) and the estimator's (argmin J - truth), both in bounds.
+  over the PSO search box (a linear programme on the linearised navigation errors, :func:`argmin_J`), so the
+  error of a PSO estimate splits into the optimiser's part (estimate - argmin J) and the estimator's
+  (argmin J - truth), both in Cramer-Rao bounds.
 """
 from __future__ import annotations
 
@@ -417,7 +418,6 @@ def calibration_point(recording_path, truth_path, cfg: dict, log=print):
 def drift_point(recording_path, cfg: dict, log=print):
     """``tests`` PSOBE runs against the noise limit and the minimiser of J; see the module docstring."""
     import xarray as xr
-    from scipy.optimize import minimize as sp_minimize
 
     from . import drift, pso
     from .drift_study import _attitude_rad, _noise_psd
@@ -439,14 +439,10 @@ def drift_point(recording_path, cfg: dict, log=print):
         r = pso.minimize(cost, np.random.default_rng(seed + k), settings)
         est[k], J[k], hist[k] = r.best, r.best_cost, r.history
         pinned[k, r.pinned] = 1
-    # the minimiser of J: drift-only linear least squares, polished on J itself (J is not a sum of squares)
-    x0 = drift.linear_lsq(cost, with_accel_bias=False)[0]
-    f = lambda e: float(cost(np.asarray(e)[None, :])[0])  # noqa: E731
-    step = 1e-3
-    nm = sp_minimize(f, x0, method="Nelder-Mead",
-                     options={"initial_simplex": np.vstack([x0, x0 + step * np.eye(3)]), "xatol": 1e-8,
-                              "fatol": 1e-12 * max(f(x0), 1e-300), "maxfev": 2000})
-    eps_min, J_min = (nm.x, float(nm.fun)) if nm.fun <= J.min() else (est[int(np.argmin(J))], float(J.min()))
+    eps_min, J_min = argmin_J(cost, settings.lower, settings.upper)
+    J_min = float(cost(eps_min[None, :])[0])  # J of the linearised minimiser, by navigation
+    if J.min() < J_min:  # a test did better than the linearisation (never by much): use it
+        eps_min, J_min = est[int(np.argmin(J))].copy(), float(J.min())
     arw, white = _noise_psd(session)
     dt_out = cost.out_every * win.dt_nav
     crb = drift.noise_limit(dcfg["window_h"], dt_out, win.lat0, win.init.cbn(), arw, dcfg["initial_condition"],
@@ -463,7 +459,7 @@ def drift_point(recording_path, cfg: dict, log=print):
          "pinned": (("test", "axis"), pinned, {"long_name": "best particle on a range bound"}),
          "truth": (("axis",), truth, d),
          "crb": (("axis",), crb, {**d, "long_name": "Cramer-Rao bound, 1 sigma"}),
-         "argmin_J": (("axis",), eps_min, {**d, "long_name": "minimiser of J (Nelder-Mead from linear LSQ)"}),
+         "argmin_J": (("axis",), eps_min, {**d, "long_name": "minimiser of J in the search range (linear programme)"}),
          "J_min": ((), J_min),
          "error_in_bounds": (("test", "axis"), z_total, {"long_name": "(estimate - truth) / CRB"}),
          "optimizer_error_in_bounds": (("test", "axis"), z_opt, {"long_name": "(estimate - argmin J) / CRB"}),
@@ -474,6 +470,37 @@ def drift_point(recording_path, cfg: dict, log=print):
         attrs={"particles": settings.particles, "generations": G, "variant": settings.variant,
                "window_h": dcfg["window_h"], "initial_condition": dcfg["initial_condition"],
                "frame": "body axes (default: along east-north-up)"})
+
+
+def argmin_J(cost, lower: float, upper: float, step_deg_h: float = 0.01):
+    """Minimiser of J (seed 001 eq. 18) over the search box [lower, upper]^3 deg/h.
+
+    The navigation errors of a stationary window are linear in the drift compensation c (the premise of
+    :func:`calib.drift.linear_lsq`): e(c) = e0 + H c, with H from one navigation run per axis (step
+    ``step_deg_h``). J = sum of rho-weighted |e| is then convex and piecewise linear in c, and its minimum
+    over the box is a linear programme: min sum(t) s.t. -t <= e0 + H c <= t, lower <= c <= upper.
+    Returns (c [deg/h] (3,), J of the linear model).
+    """
+    from scipy.optimize import linprog
+
+    from . import drift
+
+    kl, kn = drift.position_scale(cost.unit, cost.win.lat0, cost.win.h0)
+    X = np.vstack([np.zeros(3), step_deg_h * np.eye(3)])
+    err = cost.errors(X)
+    Y = np.concatenate([err["vE"], err["vN"], kl * err["lat"], kn * err["lon"]], axis=-1)
+    w = np.repeat(np.asarray(cost.weights, float), err["vE"].shape[-1])
+    Y = Y * w
+    y0, H = Y[0], (Y[1:] - Y[0]).T / step_deg_h  # (N,), (N, 3)
+    n = y0.size
+    eye = np.eye(n)
+    A = np.block([[H, -eye], [-H, -eye]])
+    b = np.concatenate([-y0, y0])
+    res = linprog(np.concatenate([np.zeros(3), np.ones(n)]), A_ub=A, b_ub=b,
+                  bounds=[(lower, upper)] * 3 + [(0, None)] * n, method="highs")
+    if not res.success:  # pragma: no cover - a bounded feasible LP always solves
+        raise RuntimeError(f"argmin_J: linear programme failed: {res.message}")
+    return res.x[:3], float(res.fun)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -547,9 +574,22 @@ def summary_figure(ds, kind, name, columns, path):
     facet = others[0] if others else None
     fvals = list(ds[facet].values) if facet else [None]
     nrow, ncol = len(metrics), len(fvals)
-    fig, axs = plt.subplots(nrow, ncol, figsize=(3.4 * ncol + 1.0, 2.9 * nrow), squeeze=False)
+    fig, axs = plt.subplots(nrow, ncol, figsize=(3.4 * ncol + 1.0, 2.9 * nrow), squeeze=False, layout="constrained")
     averaged = set()
+    from matplotlib.colors import LogNorm, Normalize
+
     for i, (var, label, cmap, scale) in enumerate(metrics):
+        if len(axes2) == 2:  # one colour scale per metric, shared by the columns
+            red_all = [_reduce(ds[var] if fv is None else ds[var].sel({facet: fv}), axes2)[0].values for fv in fvals]
+            zs = np.concatenate([r.ravel() for r in red_all])
+            zs = zs[np.isfinite(zs)]
+            pos = zs[zs > 0]
+            if scale == "log" and pos.size and pos.min() < pos.max():
+                norm = LogNorm(vmin=pos.min(), vmax=pos.max())
+            elif zs.size and zs.min() < zs.max():
+                norm = Normalize(vmin=zs.min(), vmax=zs.max())
+            else:
+                norm = None
         for j, fv in enumerate(fvals):
             ax = axs[i, j]
             da = ds[var] if fv is None else ds[var].sel({facet: fv})
@@ -557,11 +597,6 @@ def summary_figure(ds, kind, name, columns, path):
                 red, over = _reduce(da, axes2)
                 averaged.update(over)
                 z = red.transpose(y, x).values
-                from matplotlib.colors import LogNorm
-
-                pos = z[np.isfinite(z) & (z > 0)]
-                norm = LogNorm(vmin=pos.min(), vmax=pos.max()) if scale == "log" and pos.size and pos.min() < pos.max() \
-                    else None
                 im = ax.imshow(z, origin="lower", aspect="auto", cmap=cmap, norm=norm)
                 ax.set_xticks(range(ds.sizes[x]), [str(v) for v in ds[x].values])
                 ax.set_yticks(range(ds.sizes[y]), [str(v) for v in ds[y].values])
@@ -570,7 +605,8 @@ def summary_figure(ds, kind, name, columns, path):
                             bbox={"facecolor": "k", "alpha": 0.25, "pad": 0.5, "lw": 0})
                 ax.set_xlabel(x)
                 ax.set_ylabel(y)
-                fig.colorbar(im, ax=ax, label=label, shrink=0.85)
+                if j == ncol - 1:
+                    fig.colorbar(im, ax=axs[i, :].tolist(), label=label, shrink=0.85)
                 ax.grid(False)
             else:
                 lead = axes2[0] if axes2 else columns[0]
@@ -585,5 +621,4 @@ def summary_figure(ds, kind, name, columns, path):
                 ax.set_title(f"{facet} = {fv}", fontsize=8)
     note = f" (mean over {', '.join(sorted(averaged))})" if averaged else ""
     fig.suptitle(f"sweep {name}{note}", fontsize=9)
-    fig.tight_layout()
     figures.save(fig, path)

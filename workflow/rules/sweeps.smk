@@ -18,11 +18,6 @@ SWEEPS = _sweeps.load_all(
 _SWEEP_NAMES = "|".join(re.escape(n) for n in SWEEPS) or "(?!)"
 
 
-def sweep_point_files(w):
-    s = SWEEPS[w.sweep]
-    return expand(f"{R}/sweeps/{{sweep}}/points/{{point}}.nc", sweep=w.sweep, point=s.points)
-
-
 wildcard_constraints:
     sweep=_SWEEP_NAMES,
 
@@ -75,7 +70,7 @@ rule sweep_point:
 
 rule sweep_gather:
     input:
-        points=sweep_point_files,
+        points=lambda w: [f"{R}/sweeps/{w.sweep}/points/{p}.nc" for p in SWEEPS[w.sweep].points],
     output:
         nc=f"{R}/sweeps/{{sweep}}/sweep.nc",
         table=report(f"{R}/sweeps/{{sweep}}/summary.csv", category="6 Sweeps", subcategory="{sweep}", caption="../report/sweep_table.rst"),
