@@ -97,22 +97,10 @@ def cmd_fieldcal(a):
 
 
 def cmd_navigate(a):
-    import xarray as xr
+    from . import navigation_study
 
-    from . import navigation
-    from .ncio import write_netcdf
-    from .sensors import TriadModel
-
-    cal = None
-    if a.calibration:
-        with xr.open_dataset(a.calibration, engine="netcdf4") as d:
-            cal = navigation.TriadCalibration(TriadModel.from_vector(d["accel"].values, "g", "count s-1"),
-                                              TriadModel.from_vector(d["gyro"].values, "deg h-1", "count s-1"))
-    init = "align" if a.align else "attrs"
-    ds = navigation.navigate_recording(a.recording, calibration=cal, init=init, nav_rate_hz=a.nav_rate,
-                                       output_interval_s=a.output_interval,
-                                       progress=lambda d, n: print(f"{100 * d / n:5.1f} %", flush=True))
-    write_netcdf(ds, a.out)
+    nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
+    navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs")
     print(f"wrote {a.out}")
 
 

@@ -103,6 +103,11 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
     ab = np.asarray(session.get("accel_bias_m_s2", [0.0, 0.0, 0.0]), float)
     if np.any(ab):
         base["J_minimum_accel_bias_compensated"] = cost.minimum(truth, accel_bias=ab)[0]
+    # the unit of the position terms of J weights them against the velocity terms: show how it moves J's minimum
+    for unit in drift.POSITION_UNITS:
+        if unit != dcfg["position_unit"]:
+            other = drift.NavigationCost(win, dcfg["output_interval_s"], dcfg["weights"], unit)
+            base[f"J_minimum_position_in_{unit}"] = other.minimum(jmin)[0]
     timing["J_minimum_search_s"] = time.perf_counter() - t
     log(f"J minimum (drift-only model): {np.array2string(jmin, precision=5)} deg/h, J = {jmin_val:.5g}; "
         f"mean PSO best J = {np.mean([cost(e[None])[0] for e in est[:3]]):.5g}")

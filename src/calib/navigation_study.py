@@ -89,3 +89,25 @@ def _fig10(path, res):
     fig.suptitle("Seed 000 Fig. 10: static navigation with each method's calibration (true initial state)")
     fig.tight_layout()
     figures.save(fig, path)
+
+
+def load_calibration(nc_path):
+    """TriadCalibration from a ``default_calibration.nc`` of the calibrate stage (body frame, counts)."""
+    with xr.open_dataset(nc_path, engine="netcdf4") as d:
+        return navigation.TriadCalibration(TriadModel.from_vector(d["accel"].values, "g", "count s-1"),
+                                           TriadModel.from_vector(d["gyro"].values, "deg h-1", "count s-1"))
+
+
+def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print):
+    """Navigate one recording (streamed, progress in the log) and write the labelled error dataset."""
+    from .recording import read_header
+    from .runlog import Progress
+
+    cal = load_calibration(calibration_nc) if calibration_nc else None
+    bar = Progress(read_header(recording_path).n_samples, f"navigating {Path(recording_path).name}")
+    ds = navigation.navigate_recording(recording_path, calibration=cal, init=init, nav_rate_hz=nav["nav_rate_hz"],
+                                       output_interval_s=nav["output_interval_s"], progress=lambda d, n: bar(d))
+    write_netcdf(ds, out_nc, prov)
+    log(f"final errors: vE {float(ds['vE_err'][-1]):.4f} m/s, vN {float(ds['vN_err'][-1]):.4f} m/s, "
+        f"lat {float(ds['lat_err_arcmin'][-1]):.3f}', lon {float(ds['lon_err_arcmin'][-1]):.3f}'")
+    return ds

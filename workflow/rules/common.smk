@@ -26,6 +26,7 @@ def all_targets():
     t = [
         f"{R}/calibration/tables/table5_methods.csv",
         f"{R}/navigation/figure10_static_check.png",
+        f"{R}/navigation/static_check_errors.nc",
         f"{R}/drift/table1_pso.csv",
         f"{R}/drift/validation_240h.nc",
         f"{R}/drift/noise_seeds.csv",

@@ -23,3 +23,25 @@ rule static_check:
         "../envs/calib.yaml"
     script:
         "../scripts/static_check.py"
+
+
+rule navigate:
+    """Any recording of the data stage with the default calibration (count recordings) -> navigation errors."""
+    input:
+        recording=f"{R}/data/{{session}}.nc",
+        calibration=lambda w: [] if w.session == "navigation_session" else f"{R}/calibration/default_calibration.nc",
+    output:
+        nc=f"{R}/navigation/{{session}}_errors.nc",
+    params:
+        nav=sub("navigation"),
+    wildcard_constraints:
+        session="calibration_session|static_check|navigation_session",
+    threads: 2
+    log:
+        f"{R}/logs/navigate_{{session}}.log",
+    benchmark:
+        f"{R}/benchmarks/navigate_{{session}}.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/navigate.py"
