@@ -11,12 +11,16 @@ configfile: "config/config.yaml"
 validate(config, "workflow/schemas/config.schema.yaml")
 
 
+report: "workflow/report/workflow.rst"
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/calibration.smk"
 include: "workflow/rules/navigation.smk"
 include: "workflow/rules/drift.smk"
 include: "workflow/rules/real.smk"
+include: "workflow/rules/sweeps.smk"
 include: "workflow/rules/track.smk"
 
 

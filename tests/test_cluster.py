@@ -94,3 +94,4 @@ def test_data_and_drift_stages_through_cluster_executor(tmp_path):
         _cancel_leftovers(state)
         shutil.rmtree(results, ignore_errors=True)
         shutil.rmtree(work, ignore_errors=True)
+        (tmp_path / "report.html").unlink(missing_ok=True)

@@ -172,7 +172,8 @@ def test_calibration_point_least_squares_reaches_the_optimum(tmp_path):
     session = dict(study["calibration_session"], dwell_s=5.0, rotation_rates_deg_s=[])
     stages.simulate_calibration(session, study["site"], 11, tmp_path / "c.nc", tmp_path / "c.json")
     cfg = {"seeds": study["seeds"], "site": study["site"], "calibration_session": session,
-           "calibration": dict(study["calibration"], runs=2, NP=10, EG=5), "sweep": {"method": "lsq", "problem": "accel"}}
+           "calibration": dict(study["calibration"], runs=2, NP=10, EG=5),
+           "sweep": {"method": "lsq", "problem": "accel"}}
     ds = sweeps.calibration_point(tmp_path / "c.nc", tmp_path / "c.json", cfg)
     assert float(ds["success_pct"]) == 100.0
     assert float(ds["L_star"]) <= ds["L"].values.min()
@@ -219,9 +220,9 @@ def _snakemake(args, cwd, timeout=300):
 
 
 def test_sweep_rules_gather_the_points(tmp_path):
-    """`snakemake sweeps` with a 2 x 2 drift sweep: one session, four point jobs, one labelled netCDF."""
+    """`snakemake sweeps` with a 2-point drift sweep: one session, two point jobs, one labelled netCDF."""
     sweep = _write(tmp_path, {"name": "tiny", "kind": "drift_pso", "base": {"drift": {"window_h": 0.25, "tests": 1}},
-                              "grid": {"particles": [4, 8], "generations": [2, 4]}}, "tiny.yaml")
+                              "fixed": {"generations": 3}, "grid": {"particles": [4, 8]}}, "tiny.yaml")
     cfg = _study()
     cfg.update(results=str(tmp_path / "results"), sweeps=[str(sweep)])
     cfgfile = _write(tmp_path, cfg, "config.yaml")
@@ -231,12 +232,12 @@ def test_sweep_rules_gather_the_points(tmp_path):
     assert r.returncode == 0, (r.stdout + r.stderr)[-4000:]
     res = tmp_path / "results" / "sweeps" / "tiny"
     with xr.open_dataset(res / "sweep.nc", engine="netcdf4") as ds:
-        assert dict(ds["rms_error_in_bounds"].sizes) == {"particles": 2, "generations": 2}
+        assert dict(ds["rms_error_in_bounds"].sizes) == {"particles": 2}
+        assert ds.sizes["generation"] == 4 and json.loads(ds.attrs["fixed"]) == {"generations": 3}
         for p in (4, 8):
-            for g in (2, 4):
-                with xr.open_dataset(res / "points" / f"particles~{p}_generations~{g}.nc", engine="netcdf4") as pt:
-                    np.testing.assert_array_equal(ds["estimate"].sel(particles=p, generations=g).values,
-                                                  pt["estimate"].values)
+            with xr.open_dataset(res / "points" / f"particles~{p}.nc", engine="netcdf4") as pt:
+                assert json.loads(pt.attrs["point"]) == {"particles": p}
+                np.testing.assert_array_equal(ds["estimate"].sel(particles=p).values, pt["estimate"].values)
     assert (res / "summary.png").stat().st_size > 0
     assert not list((res / "sessions").glob("*.nc"))  # the session is temporary
 

@@ -35,7 +35,6 @@ import copy
 import itertools
 import json
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -94,7 +93,7 @@ class Parameter:
 #: workflow/schemas/sweep.schema.yaml (tests/test_sweeps.py checks it).
 PARAMETERS = {
     "calibration": [
-        Parameter("noise_scale", True, _scale_cal_noise, "factor on the four noise sigmas of calibration_session.noise"),
+        Parameter("noise_scale", True, _scale_cal_noise, "factor on the 4 noise sigmas of calibration_session.noise"),
         Parameter("seed", True, _set("seeds", "data"), "noise realisation of the session (seeds.data)"),
         Parameter("dwell_s", True, _set("calibration_session", "dwell_s"), "dwell per static position [s]"),
         Parameter("method", False, _set("sweep", "method"), "optimiser (calibration.methods names); default ide"),
@@ -441,7 +440,7 @@ def drift_point(recording_path, cfg: dict, log=print):
         pinned[k, r.pinned] = 1
     eps_min, J_min = argmin_J(cost, settings.lower, settings.upper)
     J_min = float(cost(eps_min[None, :])[0])  # J of the linearised minimiser, by navigation
-    if J.min() < J_min:  # a test did better than the linearisation (never by much): use it
+    if J.min() < J_min:  # a test did better (the errors are not exactly linear in the drift): use it
         eps_min, J_min = est[int(np.argmin(J))].copy(), float(J.min())
     arw, white = _noise_psd(session)
     dt_out = cost.out_every * win.dt_nav
@@ -527,7 +526,10 @@ def gather(kind: str, name: str, paths, values: list[dict], columns: list[str], 
     ds = xr.concat(dss, dim="point", join="outer", fill_value=np.nan, coords="minimal", compat="override",
                    combine_attrs="drop")
     ds = ds.assign_coords({c: ("point", [v[c] for v in values]) for c in columns})
-    ds = ds.set_index(point=columns).unstack("point")
+    if len(columns) == 1:  # a single swept parameter: it becomes the dimension itself
+        ds = ds.swap_dims({"point": columns[0]})
+    else:
+        ds = ds.set_index(point=columns).unstack("point")
     ds = ds.transpose(*columns, ...)
     for c in columns:
         ds[c].attrs["long_name"] = f"swept: {c}"
