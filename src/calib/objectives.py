@@ -237,6 +237,26 @@ def _k_entries(t, code, fm, fb):
     return m, b
 
 
+@numba.njit(cache=True, inline="always")
+def _adjugate(m):
+    """Adjugate entries (row-major) of a 3x3 matrix given as a 9-tuple and 1/det (det floored at 1e-300):
+    M^-1 = adj(M) / det, written out for the kernels."""
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
+    c00 = m11 * m22 - m12 * m21
+    c01 = m02 * m21 - m01 * m22
+    c02 = m01 * m12 - m02 * m11
+    c10 = m12 * m20 - m10 * m22
+    c11 = m00 * m22 - m02 * m20
+    c12 = m02 * m10 - m00 * m12
+    c20 = m10 * m21 - m11 * m20
+    c21 = m01 * m20 - m00 * m21
+    c22 = m00 * m11 - m01 * m10
+    det = m00 * c00 + m01 * c10 + m02 * c20
+    if abs(det) < 1e-300:
+        det = 1e-300
+    return c00, c01, c02, c10, c11, c12, c20, c21, c22, 1.0 / det
+
+
 @numba.njit(cache=True)
 def _k_norm_residuals(th, code, fm, fb, N, T2, w, use_w, out):
     """out[p, m] = (T2 - |M_p^-1 (N_m - b_p)|^2) * w[m] (seed 000 eq. 7 terms)."""
@@ -244,20 +264,7 @@ def _k_norm_residuals(th, code, fm, fb, N, T2, w, use_w, out):
     nm = N.shape[0]
     for p in range(P):
         m, b = _k_entries(th[p], code, fm, fb)
-        m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
-        c00 = m11 * m22 - m12 * m21
-        c01 = m02 * m21 - m01 * m22
-        c02 = m01 * m12 - m02 * m11
-        c10 = m12 * m20 - m10 * m22
-        c11 = m00 * m22 - m02 * m20
-        c12 = m02 * m10 - m00 * m12
-        c20 = m10 * m21 - m11 * m20
-        c21 = m01 * m20 - m00 * m21
-        c22 = m00 * m11 - m01 * m10
-        det = m00 * c00 + m01 * c10 + m02 * c20
-        if abs(det) < 1e-300:
-            det = 1e-300
-        inv = 1.0 / det
+        c00, c01, c02, c10, c11, c12, c20, c21, c22, inv = _adjugate(m)
         for k in range(nm):
             v0 = N[k, 0] - b[0]
             v1 = N[k, 1] - b[1]
@@ -278,20 +285,7 @@ def _k_norm_L(th, code, fm, fb, N, T2, w, use_w, dof, out):
     nm = N.shape[0]
     for p in range(P):
         m, b = _k_entries(th[p], code, fm, fb)
-        m00, m01, m02, m10, m11, m12, m20, m21, m22 = m
-        c00 = m11 * m22 - m12 * m21
-        c01 = m02 * m21 - m01 * m22
-        c02 = m01 * m12 - m02 * m11
-        c10 = m12 * m20 - m10 * m22
-        c11 = m00 * m22 - m02 * m20
-        c12 = m02 * m10 - m00 * m12
-        c20 = m10 * m21 - m11 * m20
-        c21 = m01 * m20 - m00 * m21
-        c22 = m00 * m11 - m01 * m10
-        det = m00 * c00 + m01 * c10 + m02 * c20
-        if abs(det) < 1e-300:
-            det = 1e-300
-        inv = 1.0 / det
+        c00, c01, c02, c10, c11, c12, c20, c21, c22, inv = _adjugate(m)
         acc = 0.0
         for k in range(nm):
             v0 = N[k, 0] - b[0]

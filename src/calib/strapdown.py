@@ -308,6 +308,21 @@ def _quat_euler(q0, q1, q2, q3):  # pragma: no cover - compiled
     return math.asin(c21), math.atan2(-c20, c22), math.atan2(-c01, c11)
 
 
+@njit(cache=True, fastmath=_FM, inline="always")
+def _record(out, j, q0, q1, q2, q3, vE, vN, vU, lat, lon, h):  # pragma: no cover - compiled
+    """Output record j: [pitch, roll, yaw, vE, vN, vU, lat, lon, h]."""
+    p, r, y = _quat_euler(q0, q1, q2, q3)
+    out[j, 0] = p
+    out[j, 1] = r
+    out[j, 2] = y
+    out[j, 3] = vE
+    out[j, 4] = vN
+    out[j, 5] = vU
+    out[j, 6] = lat
+    out[j, 7] = lon
+    out[j, 8] = h
+
+
 @njit(cache=True, fastmath=_FM)
 def _run_stream(Dth, Dv, T, x, gb0, gb1, gb2, ab0, ab1, ab2, out_every, phase, out,
                 vmode, k1, k2):  # pragma: no cover - compiled
@@ -336,16 +351,7 @@ def _run_stream(Dth, Dv, T, x, gb0, gb1, gb2, ab0, ab1, ab2, out_every, phase, o
         cnt -= 1
         if cnt == 0:
             cnt = out_every
-            p, r, y = _quat_euler(q0, q1, q2, q3)
-            out[j, 0] = p
-            out[j, 1] = r
-            out[j, 2] = y
-            out[j, 3] = vE
-            out[j, 4] = vN
-            out[j, 5] = vU
-            out[j, 6] = lat
-            out[j, 7] = lon
-            out[j, 8] = h
+            _record(out, j, q0, q1, q2, q3, vE, vN, vU, lat, lon, h)
             j += 1
     x[0], x[1], x[2], x[3] = q0, q1, q2, q3
     x[4], x[5], x[6] = vE, vN, vU
@@ -401,16 +407,7 @@ def _run_fused(dth, dv, n_sub, pc, T, x, out_every, phase, out, vmode, k1, k2): 
             cnt_out -= 1
             if cnt_out == 0:
                 cnt_out = out_every
-                pp, rr, yy = _quat_euler(q0, q1, q2, q3)
-                out[j, 0] = pp
-                out[j, 1] = rr
-                out[j, 2] = yy
-                out[j, 3] = vE
-                out[j, 4] = vN
-                out[j, 5] = vU
-                out[j, 6] = lat
-                out[j, 7] = lon
-                out[j, 8] = h
+                _record(out, j, q0, q1, q2, q3, vE, vN, vU, lat, lon, h)
                 j += 1
     pc[0], pc[1], pc[2], pc[3], pc[4], pc[5] = p0, p1, p2, p3, p4, p5
     pc[6], pc[7], pc[8], pc[9], pc[10], pc[11] = a0, a1, a2, v0, v1, v2
