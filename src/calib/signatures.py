@@ -201,11 +201,14 @@ def _rate_readings(ds, sensor):
     return y, units
 
 
-def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_s: float = 0.0) -> Geometry:
+def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_s: float | None = None) -> Geometry:
     """Windows, inputs and reduction weights of a ``calib-recording-1`` dataset with a segment table.
 
     ``max_offset_s``: largest clock offset the time-offset candidate is evaluated for (limited by the
-    recorded table motion around the rotation windows). ``min_static``: fewer static segments -> error.
+    recorded table motion around the rotation windows). Static windows are trimmed by ``trim_s`` (default:
+    ``max_offset_s``) at both ends, so that no sample of a static window can see table motion under any
+    offset tested (one sample at the start of a move changes a 60 s gyro mean by rate x dt / 60 s).
+    ``min_static``: fewer static segments -> error.
     Raises :class:`DiagnosisInputError` with the reason when the recording cannot be diagnosed.
     """
     src = str(ds.attrs.get("_path", "<in-memory recording>"))
@@ -249,7 +252,7 @@ def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_
     else:
         time_s = np.arange(n) * dt
     temp = np.asarray(ds["temperature"].values, float) if "temperature" in ds else None
-    trim = int(round(trim_s * fs))
+    trim = int(math.ceil((max_offset_s if trim_s is None else trim_s) * fs))
     notes = []
     windows: list[Window] = []
     m_off = int(math.ceil(max_offset_s / dt)) + 4
@@ -423,7 +426,7 @@ class NoiseFit:
 
 #: correlation times tried for the slow part of the noise [s]. Slower variations are, by convention, bias
 #: drift: a Gauss-Markov bias with a correlation time beyond the session cannot be told from a drift
-SLOW_TCS = (30.0, 60.0, 120.0, 300.0, 600.0)
+SLOW_TCS = (60.0, 120.0, 300.0, 600.0)
 
 
 def fit_noise(geom: Geometry, y: dict, pulse_counter: dict | None = None) -> NoiseFit:
@@ -529,69 +532,79 @@ def slow_structure(parts, geom, sensor, tc, cache=None):
 
 def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS, *, blocks=None,
                   method: str = "reml", update: bool = True):
-    """Profile likelihood of the noise per (sensor, axis) block given the fixed-effect design ``X``:
+    """Profile likelihood of the noise of each sensor given the fixed-effect design ``X``, pooled over the
+    sensor's three axis blocks (one level, one bias instability for the triad):
 
-        C = lam (C_fast + rho A_GM(Tc)),   C_fast = N^2 A_N + Q^2 A_Q  (shape from the Allan fit)
+        C_axis = lam (C_fast,axis + rho A_GM(Tc)),   C_fast,axis = N_a^2 A_N + Q_a^2 A_Q  (Allan shape)
 
-    ``lam`` profiled analytically, ``rho`` on a log grid (plus 0) for every Tc in ``tcs`` (C_fast = L L^T,
-    L^-1 A L^-T = V Lam V^T, so every rho costs O(m)). ``method='reml'``: restricted likelihood of the error
-    contrasts orthogonal to X (the noise estimate); ``'ml'``: the full likelihood (to compare designs).
-    The slow part is kept only when it beats rho = 0 by a BIC margin (2 parameters).
-    Returns {(sensor index, axis): (-2 log L up to a constant shared by all designs, lam, Tc, sigma_slow)};
-    with ``update`` the noise model is set to the optimum."""
+    ``lam`` profiled analytically, ``rho`` on a log grid (plus 0) for every Tc in ``tcs`` (per block
+    C_fast = L L^T, L^-1 A L^-T = V Lam V^T, so every rho costs O(m)). ``method='reml'``: restricted likelihood of
+    the error contrasts orthogonal to X (the noise estimate); ``'ml'``: the full likelihood (to compare
+    designs). The slow part is kept only when it beats rho = 0 by a BIC margin (2 parameters).
+    Returns {sensor: (-2 log L up to a constant shared by all designs, lam, Tc, rho)}; with ``update`` the noise
+    model is set to the optimum (sigma_slow,axis = sqrt(lam rho) N-shape independent)."""
     cache = {} if cache is None else cache
     out = {}
     keys = blocks if blocks is not None else [(si, a) for si in range(2) for a in range(3)]
-    for si, a in keys:
-        s = SENSORS[si]
+    for si, s in enumerate(SENSORS):
+        mine = [(sj, a) for sj, a in keys if sj == si]
+        if not mine:
+            continue
         AN, AQ, _ = parts[s]
-        idx = geom.obs["blocks"][(si, a)]
-        Xb = X[idx]
-        Xb = Xb[:, np.any(Xb != 0, axis=0)]
-        yb = y[idx]
-        C0 = noise.N_shape[s][a] ** 2 * AN + noise.Q_shape[s][a] ** 2 * AQ
-        L0 = np.linalg.cholesky(C0)
-        X1 = linalg.solve_triangular(L0, Xb, lower=True)
-        y1 = linalg.solve_triangular(L0, yb, lower=True)
-        U, sv, _ = np.linalg.svd(X1, full_matrices=False)
-        X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
-        m, p = X1.shape
-        nfree = m - p if method == "reml" else m
-        best = None
-        white = None
+        pre = []
+        for _, a in mine:
+            idx = geom.obs["blocks"][(si, a)]
+            Xb = X[idx]
+            Xb = Xb[:, np.any(Xb != 0, axis=0)]
+            C0 = noise.N_shape[s][a] ** 2 * AN + noise.Q_shape[s][a] ** 2 * AQ
+            L0 = np.linalg.cholesky(C0)
+            X1 = linalg.solve_triangular(L0, Xb, lower=True)
+            y1 = linalg.solve_triangular(L0, y[idx], lower=True)
+            U, sv, _ = np.linalg.svd(X1, full_matrices=False)
+            X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
+            pre.append((L0, X1, y1))
+        m_tot = sum(p[1].shape[0] for p in pre)
+        nfree = sum(p[1].shape[0] - (p[1].shape[1] if method == "reml" else 0) for p in pre)
+        best, white = None, None
         for tc in tcs:
             A = slow_structure(parts, geom, s, tc, cache)
-            B = linalg.solve_triangular(L0, linalg.solve_triangular(L0, A, lower=True).T, lower=True)
-            lam, V = np.linalg.eigh(0.5 * (B + B.T))
-            lam = np.clip(lam, 0.0, None)
-            Xt, yt = V.T @ X1, V.T @ y1
-            scale = 1.0 / max(lam.max(), 1e-300)
-            rho = np.concatenate([[0.0], scale * np.logspace(-4, 3, 71)])
-            d = 1.0 + rho[:, None] * lam[None, :]
-            w = 1.0 / d
-            XtWX = np.einsum("gm,mi,mj->gij", w, Xt, Xt)
-            XtWy = np.einsum("gm,mi,m->gi", w, Xt, yt)
-            yWy = np.einsum("gm,m->g", w, yt * yt)
-            sol = np.linalg.solve(XtWX, XtWy[..., None])[..., 0]
-            rr = yWy - np.einsum("gi,gi->g", sol, XtWy)
-            lam_hat = rr / nfree
-            nll = nfree * np.log(lam_hat) + np.sum(np.log(d), axis=1)
-            if method == "reml":
-                nll = nll + np.linalg.slogdet(XtWX)[1]
+            rr_t, ld_t = 0.0, 0.0
+            rho = None
+            for L0, X1, y1 in pre:
+                B = linalg.solve_triangular(L0, linalg.solve_triangular(L0, A, lower=True).T, lower=True)
+                lam, V = np.linalg.eigh(0.5 * (B + B.T))
+                lam = np.clip(lam, 0.0, None)
+                if rho is None:
+                    scale = 1.0 / max(lam.max(), 1e-300)
+                    rho = np.concatenate([[0.0], scale * np.logspace(-4, 3, 71)])
+                Xt, yt = V.T @ X1, V.T @ y1
+                d = 1.0 + rho[:, None] * lam[None, :]
+                w = 1.0 / d
+                XtWX = np.einsum("gm,mi,mj->gij", w, Xt, Xt)
+                XtWy = np.einsum("gm,mi,m->gi", w, Xt, yt)
+                yWy = np.einsum("gm,m->g", w, yt * yt)
+                sol = np.linalg.solve(XtWX, XtWy[..., None])[..., 0]
+                rr_t = rr_t + (yWy - np.einsum("gi,gi->g", sol, XtWy))
+                ld_t = ld_t + np.sum(np.log(d), axis=1)
+                if method == "reml":
+                    ld_t = ld_t + np.linalg.slogdet(XtWX)[1]
+            lam_hat = rr_t / nfree
+            nll = nfree * np.log(lam_hat) + ld_t
             if white is None:
                 white = (float(nll[0]), math.inf, 0.0, float(lam_hat[0]))
             j = int(np.argmin(nll))
             if best is None or nll[j] < best[0]:
                 best = (float(nll[j]), tc, float(rho[j]), float(lam_hat[j]))
-        if white[0] - best[0] < 2.0 * math.log(m):
+        if white[0] - best[0] < 2.0 * math.log(m_tot):
             best = white
         nll_b, tc, rho_b, lam_b = best
-        out[(si, a)] = (nll_b, lam_b, tc, math.sqrt(lam_b * rho_b))
+        out[s] = (nll_b, lam_b, tc, rho_b)
         if update:
-            noise.scale[s][a] = lam_b
-            noise.N[s][a] = noise.N_shape[s][a] * math.sqrt(lam_b)
-            noise.Q[s][a] = noise.Q_shape[s][a] * math.sqrt(lam_b)
-            noise.slow[s][a] = (tc, math.sqrt(lam_b * rho_b))
+            for _, a in mine:
+                noise.scale[s][a] = lam_b
+                noise.N[s][a] = noise.N_shape[s][a] * math.sqrt(lam_b)
+                noise.Q[s][a] = noise.Q_shape[s][a] * math.sqrt(lam_b)
+                noise.slow[s][a] = (tc, math.sqrt(lam_b * rho_b))
     return out
 
 

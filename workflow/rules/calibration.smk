@@ -31,3 +31,25 @@ rule calibrate:
         "../envs/calib.yaml"
     script:
         "../scripts/calibrate.py"
+
+
+rule calibration_z:
+    """The default calibration over independent noise seeds: z-scores of every identified parameter."""
+    output:
+        table=report(f"{R}/calibration/zscores.csv", category="2 Calibration (seed 000)", caption="../report/zscores.rst"),
+        fig=report(f"{R}/calibration/zscores.png", category="2 Calibration (seed 000)", caption="../report/zscores.rst"),
+        metrics=f"{R}/calibration/zscores.metrics.json",
+    params:
+        session=sub("calibration_session"),
+        site=sub("site"),
+        calibration=sub("calibration"),
+        seed=config["seeds"]["data"] + 5000,
+        workdir=lambda w, output: os.path.join(os.path.dirname(output.table), "tmp_zscores"),
+    log:
+        f"{R}/logs/calibration_z.log",
+    benchmark:
+        f"{R}/benchmarks/calibration_z.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/calibration_z.py"

@@ -31,4 +31,6 @@ def all_targets():
         f"{R}/drift/validation_240h.nc",
         f"{R}/drift/noise_seeds.csv",
     ]
+    if config["calibration"].get("z_seeds", 0) > 0:
+        t.append(f"{R}/calibration/zscores.csv")
     return t

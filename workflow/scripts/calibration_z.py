@@ -1,0 +1,8 @@
+"""Rule calibration_z: z-scores of the default calibration over independent noise seeds."""
+from calib import calibration_study, runlog
+
+p = snakemake.params
+with runlog.to_file(snakemake.log[0]):
+    o = snakemake.output
+    calibration_study.run_z_seeds(p.session, p.site, p.calibration, p.calibration["z_seeds"], p.seed, o.table, o.fig,
+                                  o.metrics, p.workdir)
