@@ -78,6 +78,58 @@ DEFAULT_SETTINGS = {
 
 
 # =====================================================================================================
+# BLAS threads: the diagnosis is thousands of small dense problems (<= 400 x 60); a multithreaded BLAS only
+# adds synchronisation (measured 8x slower on a shared 2-core machine), so it runs single-threaded
+# =====================================================================================================
+_BLAS_FUNCS = (("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_threads64_"),
+               ("scipy_openblas_set_num_threads", "scipy_openblas_get_num_threads"),
+               ("openblas_set_num_threads", "openblas_get_num_threads"),
+               ("openblas_set_num_threads64_", "openblas_get_num_threads64_"))
+
+
+def _blas_handles():
+    import ctypes
+
+    out = []
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = {ln.split()[-1] for ln in fh if "openblas" in ln.lower() and ln.split()[-1].startswith("/")}
+    except OSError:
+        return out
+    for p in sorted(paths):
+        try:
+            lib = ctypes.CDLL(p)
+        except OSError:
+            continue
+        for set_name, get_name in _BLAS_FUNCS:
+            if hasattr(lib, set_name) and hasattr(lib, get_name):
+                out.append((getattr(lib, set_name), getattr(lib, get_name)))
+                break
+    return out
+
+
+class single_thread_blas:
+    """Context manager: OpenBLAS (numpy's and scipy's) limited to one thread inside, restored after."""
+
+    def __enter__(self):
+        self._h = _blas_handles()
+        self._old = []
+        for set_f, get_f in self._h:
+            try:
+                self._old.append(int(get_f()))
+                set_f(1)
+            except Exception:  # noqa: BLE001 - a BLAS without the call simply keeps its threads
+                self._old.append(None)
+        return self
+
+    def __exit__(self, *exc):
+        for (set_f, _), old in zip(self._h, self._old):
+            if old:
+                set_f(old)
+        return False
+
+
+# =====================================================================================================
 # problem: observations, whitening, base design, library
 # =====================================================================================================
 @dataclass
@@ -330,7 +382,7 @@ def _columns(prob: Problem, key, taus):
     return S[:, c.active]
 
 
-def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_column=True) -> Fit:
+def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_column=True, delta_hint=None) -> Fit:
     """GLS fit of the base model plus ``terms`` (candidate keys). Nonlinear parameters (clock offset, drift
     time constants) are optimised by profile likelihood unless given."""
     terms = list(terms)
@@ -338,7 +390,7 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_colu
     drift_keys = [k for k in terms if prob.cand(k).kind == "drift"]
     has_off = "time_offset" in terms
     if has_off and delta is None:
-        return _fit_offset(prob, terms, taus)
+        return _fit_offset(prob, terms, taus, hint=delta_hint)
     missing = [k for k in drift_keys if k not in taus]
     if missing:
         return _fit_drift_taus(prob, terms, taus, delta, missing, offset_column)
@@ -391,18 +443,22 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_colu
                active=active, X=A if keep_X else None)
 
 
-def _fit_offset(prob: Problem, terms, taus):
-    """Profile the clock offset: coarse scan on the library grid, then bounded Brent."""
+def _fit_offset(prob: Problem, terms, taus, hint=None):
+    """Profile the clock offset: coarse scan on the library grid (or, with ``hint``, a bracket of +-10 ms
+    around a previous estimate), then bounded Brent."""
     om = prob.cand("time_offset").offset
     lo, hi = om.bounds
-    grid = np.linspace(lo, hi, 21)
 
     def f(d):
         return fit(prob, terms, delta=float(d), taus=taus, offset_column=False).chi2
 
-    vals = np.array([f(d) for d in grid])
-    j = int(np.argmin(vals))
-    a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
+    if hint is not None:
+        a, b = max(lo, hint - 0.01), min(hi, hint + 0.01)
+    else:
+        grid = np.linspace(lo, hi, 21)
+        vals = np.array([f(d) for d in grid])
+        j = int(np.argmin(vals))
+        a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
     r = optimize.minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-6})
     return fit(prob, terms, delta=float(r.x), taus=taus)
 
@@ -567,7 +623,8 @@ def stepwise(prob: Problem, base: Fit | None = None):
                 dchi, dk, tau = _slow_statistic(prob, cur, k)
                 f = None
             else:
-                f = fit(prob, cur.terms + [k], taus=cur.taus, delta=None)
+                f = fit(prob, cur.terms + [k], taus=cur.taus,
+                        delta_hint=cur.delta if "time_offset" in cur.terms else None)
                 dchi = cur.chi2 - f.chi2
                 dk = f.k - cur.k
                 tau = None
@@ -673,7 +730,8 @@ def _block_table(prob: Problem, f: Fit):
     out = []
     for (si, a), idx in prob.geom.obs["blocks"].items():
         c2 = float(np.sum(f.resid_w[idx] ** 2))
-        out.append({"sensor": SENSORS[si], "axis": AXES[a], "chi2": c2, "n_obs": int(idx.size),
+        out.append({"sensor": SENSORS[si], "axis": AXES[a] if prob.kind == "vector" else "norm", "chi2": c2,
+                    "n_obs": int(idx.size),
                     "share": c2 / f.chi2 if f.chi2 > 0 else 0.0})
     return out
 
@@ -736,35 +794,35 @@ def locate(prob: Problem, f: Fit) -> dict:
         Xh = np.column_stack(cols)
         if np.linalg.matrix_rank(Xh) < Xh.shape[1]:
             Xh = Xh[:, :np.linalg.matrix_rank(Xh)]
-        for si, s in enumerate(SENSORS):
-            for a in range(3):
-                idx = np.array([np.flatnonzero((o["window"] == wi) & (o["sensor"] == si) & (o["axis"] == a)
-                                               & (o["row"] == 0))[0] for wi in wins])
-                zz = r[idx] / sig[idx]
-                coef, *_ = np.linalg.lstsq(Xh, zz, rcond=None)
-                covh = np.linalg.inv(Xh.T @ Xh)
-                harms = []
-                for h in range(1, hmax + 1):
-                    j = 2 * h - 1
-                    if j + 1 >= Xh.shape[1]:
-                        break
-                    c2 = coef[j:j + 2]
-                    chi = float(c2 @ np.linalg.solve(covh[j:j + 2, j:j + 2], c2))
-                    amp = float(np.hypot(*c2) * np.mean(sig[idx]))
-                    harms.append({"harmonic": h, "amplitude": amp, "chi2_2dof": chi,
-                                  "p": float(stats.chi2.sf(chi, 2))})
-                mean_z = float(coef[0] / math.sqrt(covh[0, 0]))
-                ent = {"phase": ph, "sensor": s, "axis": AXES[a], "step_deg": step, "positions": len(wins),
-                       "mean_residual": float(np.mean(r[idx])), "mean_z": mean_z, "harmonics": harms}
-                ph_out.append(ent)
-                for hh in harms:
-                    if hh["p"] < 1e-3:
-                        findings.append((hh["chi2_2dof"], f"{s} {AXES[a]} in phase {ph}: harmonic {hh['harmonic']} of "
-                                         f"the table angle, amplitude {hh['amplitude']:.3g} {g.units_out[s]} "
-                                         f"(p = {hh['p']:.2g})"))
-                if abs(mean_z) > 3.5:
-                    findings.append((mean_z**2, f"{s} {AXES[a]}: phase {ph} mean residual "
-                                     f"{np.mean(r[idx]):.3g} {g.units_out[s]} ({mean_z:+.1f} sigma): phases disagree"))
+        for si, a in sorted(o["blocks"]):
+            s = SENSORS[si]
+            idx = np.array([np.flatnonzero((o["window"] == wi) & (o["sensor"] == si) & (o["axis"] == a)
+                                           & (o["row"] == 0))[0] for wi in wins])
+            zz = r[idx] / sig[idx]
+            coef, *_ = np.linalg.lstsq(Xh, zz, rcond=None)
+            covh = np.linalg.inv(Xh.T @ Xh)
+            harms = []
+            for h in range(1, hmax + 1):
+                j = 2 * h - 1
+                if j + 1 >= Xh.shape[1]:
+                    break
+                c2 = coef[j:j + 2]
+                chi = float(c2 @ np.linalg.solve(covh[j:j + 2, j:j + 2], c2))
+                amp = float(np.hypot(*c2) * np.mean(sig[idx]))
+                harms.append({"harmonic": h, "amplitude": amp, "chi2_2dof": chi,
+                              "p": float(stats.chi2.sf(chi, 2))})
+            mean_z = float(coef[0] / math.sqrt(covh[0, 0]))
+            ent = {"phase": ph, "sensor": s, "axis": AXES[a], "step_deg": step, "positions": len(wins),
+                   "mean_residual": float(np.mean(r[idx])), "mean_z": mean_z, "harmonics": harms}
+            ph_out.append(ent)
+            for hh in harms:
+                if hh["p"] < 1e-3:
+                    findings.append((hh["chi2_2dof"], f"{s} {AXES[a]} in phase {ph}: harmonic {hh['harmonic']} of "
+                                     f"the table angle, amplitude {hh['amplitude']:.3g} {g.units_out[s]} "
+                                     f"(p = {hh['p']:.2g})"))
+            if abs(mean_z) > 3.5:
+                findings.append((mean_z**2, f"{s} {AXES[a]}: phase {ph} mean residual "
+                                 f"{np.mean(r[idx]):.3g} {g.units_out[s]} ({mean_z:+.1f} sigma): phases disagree"))
     out["static_phases"] = ph_out
     # --- rotation pairs: sums and differences against |rate|
     rot = [wi for wi, w in enumerate(g.windows) if w.kind == "rotation"]
@@ -783,40 +841,40 @@ def locate(prob: Problem, f: Fit) -> dict:
                 used |= {i, j}
                 break
     pr_out = []
-    for si, s in enumerate(SENSORS):
-        for a in range(3):
-            sums, difs, rates, ax_lab = [], [], [], []
-            for (p, m) in pairs:
-                ip = np.flatnonzero((o["window"] == p) & (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0))
-                im = np.flatnonzero((o["window"] == m) & (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0))
-                if not ip.size or not im.size:
-                    continue
-                ip, im = ip[0], im[0]
-                sd = 0.5 * math.hypot(sig[ip], sig[im])
-                sums.append(((r[ip] + r[im]) / 2, sd))
-                difs.append(((r[ip] - r[im]) / 2, sd))
-                rates.append(abs(g.windows[p].rate_deg_s))
-                ax_lab.append(AXES[int(np.argmax(np.abs(g.windows[p].axis)))])
-            if not sums:
+    for si, a in sorted(o["blocks"]):
+        s = SENSORS[si]
+        sums, difs, rates, ax_lab = [], [], [], []
+        for (p, m) in pairs:
+            ip = np.flatnonzero((o["window"] == p) & (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0))
+            im = np.flatnonzero((o["window"] == m) & (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0))
+            if not ip.size or not im.size:
                 continue
-            ent = {"sensor": s, "axis": AXES[a], "pairs": [
-                {"rotation_axis": al, "rate_deg_s": rt, "sum": sm[0], "sum_z": sm[0] / sm[1], "difference": df[0],
-                 "difference_z": df[0] / df[1]} for al, rt, sm, df in zip(ax_lab, rates, sums, difs)]}
-            for kind, vals in (("sum", sums), ("difference", difs)):
-                zv = np.array([v[0] / v[1] for v in vals])
-                chi = float(np.sum(zv**2))
-                ent[f"{kind}_chi2"] = chi
-                ent[f"{kind}_p"] = float(stats.chi2.sf(chi, zv.size))
-                rt = np.array(rates)
-                if np.ptp(rt) > 0:
-                    w = 1.0 / np.array([v[1] for v in vals]) ** 2
-                    Xr = np.column_stack([np.ones_like(rt), rt])
-                    cf = np.linalg.solve(Xr.T @ (Xr * w[:, None]), Xr.T @ (w * np.array([v[0] for v in vals])))
-                    ent[f"{kind}_slope_per_deg_s"] = float(cf[1])
-                if ent[f"{kind}_p"] < 1e-3:
-                    findings.append((chi, f"{s} {AXES[a]}: rotation-pair {kind}s do not fit (chi2 {chi:.1f} on "
-                                     f"{zv.size}, p = {ent[kind + '_p']:.2g}); " + _PAIR_HINT[(s, kind)]))
-            pr_out.append(ent)
+            ip, im = ip[0], im[0]
+            sd = 0.5 * math.hypot(sig[ip], sig[im])
+            sums.append(((r[ip] + r[im]) / 2, sd))
+            difs.append(((r[ip] - r[im]) / 2, sd))
+            rates.append(abs(g.windows[p].rate_deg_s))
+            ax_lab.append(AXES[int(np.argmax(np.abs(g.windows[p].axis)))])
+        if not sums:
+            continue
+        ent = {"sensor": s, "axis": AXES[a], "pairs": [
+            {"rotation_axis": al, "rate_deg_s": rt, "sum": sm[0], "sum_z": sm[0] / sm[1], "difference": df[0],
+             "difference_z": df[0] / df[1]} for al, rt, sm, df in zip(ax_lab, rates, sums, difs)]}
+        for kind, vals in (("sum", sums), ("difference", difs)):
+            zv = np.array([v[0] / v[1] for v in vals])
+            chi = float(np.sum(zv**2))
+            ent[f"{kind}_chi2"] = chi
+            ent[f"{kind}_p"] = float(stats.chi2.sf(chi, zv.size))
+            rt = np.array(rates)
+            if np.ptp(rt) > 0:
+                w = 1.0 / np.array([v[1] for v in vals]) ** 2
+                Xr = np.column_stack([np.ones_like(rt), rt])
+                cf = np.linalg.solve(Xr.T @ (Xr * w[:, None]), Xr.T @ (w * np.array([v[0] for v in vals])))
+                ent[f"{kind}_slope_per_deg_s"] = float(cf[1])
+            if ent[f"{kind}_p"] < 1e-3:
+                findings.append((chi, f"{s} {AXES[a]}: rotation-pair {kind}s do not fit (chi2 {chi:.1f} on "
+                                 f"{zv.size}, p = {ent[kind + '_p']:.2g}); " + _PAIR_HINT[(s, kind)]))
+        pr_out.append(ent)
     out["rotation_pairs"] = pr_out
     # --- gyro harmonics: in-phase and quadrature residual against rate (clock offset, Earth-rate magnitude)
     hq = []
@@ -864,23 +922,24 @@ def locate(prob: Problem, f: Fit) -> dict:
             tbins.append({"t0_s": float(edges[b]), "t1_s": float(edges[b + 1]), "n_obs": int(m.sum()),
                           "mean_z2": float(np.mean(z[m] ** 2))})
     trends = []
-    for si, s in enumerate(SENSORS):
-        for a in range(3):
-            m = (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0)
-            if m.sum() < 3:
-                continue
-            t = tw[o["window"][m]]
-            wgt = 1.0 / sig[m] ** 2
-            Xt = np.column_stack([np.ones_like(t), t / 3600.0])
-            A_ = Xt.T @ (Xt * wgt[:, None])
-            cf = np.linalg.solve(A_, Xt.T @ (wgt * r[m]))
-            se = math.sqrt(np.linalg.inv(A_)[1, 1])
-            trends.append({"sensor": s, "axis": AXES[a], "slope_per_h": float(cf[1]), "slope_z": float(cf[1] / se)})
-            if abs(cf[1] / se) > 4:
-                findings.append(((cf[1] / se) ** 2, f"{s} {AXES[a]}: residuals trend with time "
-                                 f"({cf[1]:.3g} {g.units_out[s]} per h, {cf[1] / se:+.1f} sigma; note: segment means "
-                                 "are correlated in time, this z is indicative)"))
+    for si, a in sorted(o["blocks"]):
+        s = SENSORS[si]
+        m = (o["sensor"] == si) & (o["axis"] == a) & (o["row"] == 0)
+        if m.sum() < 3:
+            continue
+        t = tw[o["window"][m]]
+        wgt = 1.0 / sig[m] ** 2
+        Xt = np.column_stack([np.ones_like(t), t / 3600.0])
+        A_ = Xt.T @ (Xt * wgt[:, None])
+        cf = np.linalg.solve(A_, Xt.T @ (wgt * r[m]))
+        se = math.sqrt(np.linalg.inv(A_)[1, 1])
+        trends.append({"sensor": s, "axis": AXES[a], "slope_per_h": float(cf[1]), "slope_z": float(cf[1] / se)})
+        if abs(cf[1] / se) > 4:
+            findings.append(((cf[1] / se) ** 2, f"{s} {AXES[a]}: residuals trend with time "
+                             f"({cf[1]:.3g} {g.units_out[s]} per h, {cf[1] / se:+.1f} sigma; note: segment means "
+                             "are correlated in time, this z is indicative)"))
     out["time"] = {"bins": tbins, "trends": trends}
+    out["per_segment"] = _window_table(prob, f)
     findings.sort(key=lambda x: -x[0])
     out["summary"] = [txt for _, txt in findings[:8]]
     return out
@@ -907,7 +966,8 @@ def _aliases(prob: Problem, final: Fit, key, geometry_angles):
     out = []
     for b in others:
         try:
-            fb = fit(prob, rest + [b])
+            fb = fit(prob, rest + [b], taus=final.taus,
+                     delta_hint=final.delta if "time_offset" in rest + [b] and "time_offset" in final.terms else None)
         except (np.linalg.LinAlgError, ValueError):
             continue
         dbic = (fb.chi2 - final.chi2) + (fb.k - final.k) * math.log(n)
@@ -928,7 +988,8 @@ def _absent(prob: Problem, final: Fit, table):
             continue
         c = prob.cand(k)
         try:
-            fk = fit(prob, final.terms + [k], taus={**final.taus, k: 900.0} if c.kind == "drift" else final.taus)
+            fk = fit(prob, final.terms + [k], taus={**final.taus, k: 900.0} if c.kind == "drift" else final.taus,
+                     delta_hint=final.delta if "time_offset" in final.terms else None)
         except (np.linalg.LinAlgError, ValueError):
             continue
         pars = _param_entries(prob, fk, k)
@@ -995,7 +1056,8 @@ def analyse(prob: Problem) -> dict:
     if final.terms and prob.kind == "vector":
         renoise(prob, final.terms, final.taus, final.delta)
     base = fit(prob, [])
-    final = fit(prob, final.terms, taus=final.taus) if final.terms else base
+    final = fit(prob, final.terms, taus=final.taus,
+                delta_hint=final.delta if "time_offset" in final.terms else None) if final.terms else base
     info, angles = library_geometry(prob)
     ang_map = {frozenset((a, b)): v for a, b, v in angles}
     groups = []
@@ -1032,8 +1094,9 @@ def analyse(prob: Problem) -> dict:
                     m = (o["sensor"] == si) & (o["row"] == r) & np.array(
                         [prob.geom.windows[w].kind == kind for w in o["window"]])
                     if m.any():
+                        zr = f.resid[m] / sig[m]
                         d[f"{s}_{kind}_{sg.ROWS[r]}"] = {"rms": float(np.sqrt(np.mean(f.resid[m] ** 2))),
-                                                         "rms_over_sigma": float(np.sqrt(np.mean((f.resid[m] / sig[m]) ** 2))),
+                                                         "rms_over_sigma": float(np.sqrt(np.mean(zr**2))),
                                                          "unit": prob.geom.units_out[s]}
         rms[name] = d
     nb = len(prob.base_names)
@@ -1054,8 +1117,8 @@ def analyse(prob: Problem) -> dict:
     raw = prob.__dict__.get("raw_chi2")
     if raw is not None and raw[2] < st["chi2_p_adequate"]:
         if found:
-            reason += (f"; note: the segment means scatter beyond the sensor noise (raw chi2 {raw[0]:.4g} on {raw[1]}), "
-                       "the tests used sigmas scaled to that scatter: the findings are hypotheses")
+            reason += (f"; note: the segment means scatter beyond the sensor noise (raw chi2 {raw[0]:.4g} on "
+                       f"{raw[1]}), the tests used sigmas scaled to that scatter: the findings are hypotheses")
         else:
             verdict = "inconclusive"
             reason = (f"the segment means scatter beyond the sensor noise (raw chi2 {raw[0]:.4g} on {raw[1]}, reduced "
@@ -1063,7 +1126,8 @@ def analyse(prob: Problem) -> dict:
                       "placement / motion during the static segments or physics outside the library; the data "
                       "cannot tell which")
     separations = []
-    if prob.kind == "vector" and "latitude_error" in testable_keys(prob) and "gyro_g_sensitivity/gyro" in testable_keys(prob):
+    tk = testable_keys(prob)
+    if prob.kind == "vector" and "latitude_error" in tk and "gyro_g_sensitivity/gyro" in tk:
         rot_rows = np.flatnonzero(np.array([prob.geom.windows[w].kind == "rotation" for w in o["window"]])
                                   & (o["row"] == 0))
         info_r, ang_r = library_geometry(prob, rows=rot_rows)
@@ -1229,10 +1293,11 @@ def report_markdown(rep: dict) -> str:
         L.append("## Separating look-alikes")
         L.append("")
         for s_ in sep:
-            L.append(f"- {s_['pair'][0]} vs {s_['pair'][1]}: signature angle {_fmt(s_['angle_deg_all_segments'], 3)} deg "
-                     f"with every segment, {_fmt(s_['angle_deg_rotation_means_only'], 3)} deg on the rotation means "
-                     f"alone. Segments that separate them: "
-                     + ", ".join(f"{x['segment']} ({100 * x['share']:.0f} %)" for x in s_["separating_segments_latitude"]))
+            segs = ", ".join(f"{x['segment']} ({100 * x['share']:.0f} %)" for x in s_["separating_segments_latitude"])
+            L.append(f"- {s_['pair'][0]} vs {s_['pair'][1]}: signature angle "
+                     f"{_fmt(s_['angle_deg_all_segments'], 3)} deg with every segment, "
+                     f"{_fmt(s_['angle_deg_rotation_means_only'], 3)} deg on the rotation means alone. Segments "
+                     f"that separate them: {segs}")
             L.append(f"  {s_['note']}")
         L.append("")
     L.append("## Residual RMS (output units)")
@@ -1370,10 +1435,21 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
     """Diagnose an in-memory recording. Returns (report dict, Problem or None). Writes files when
     ``out_dir`` is given."""
     st = {**DEFAULT_SETTINGS, **(settings or {})}
+    t0 = time.perf_counter()
+    with single_thread_blas():
+        rep, prob = _diagnose_dataset(ds, out_dir, st, path, library_from)
+    rep["elapsed_s"] = time.perf_counter() - t0
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        write_json_atomic(rep, out_dir / "report.json")
+        write_text_atomic(out_dir / "report.md", report_markdown(rep))
+    return rep, prob
+
+
+def _diagnose_dataset(ds, out_dir, st, path, library_from):
     from .recording import RecordingError
     from .segments import SegmentError
 
-    t0 = time.perf_counter()
     prob = None
     try:
         if "nominal_attitude" in ds or (library_from is not None and library_from.kind == "vector"):
@@ -1397,11 +1473,6 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
     except (np.linalg.LinAlgError, FloatingPointError) as exc:
         rep = inconclusive_report(path, st, f"the base calibration failed numerically ({exc})",
                                   "check the recording for dead channels or segments with the same attitude")
-    rep["elapsed_s"] = time.perf_counter() - t0
-    if out_dir is not None:
-        out_dir = Path(out_dir)
-        write_json_atomic(rep, out_dir / "report.json")
-        write_text_atomic(out_dir / "report.md", report_markdown(rep))
     return rep, prob
 
 
@@ -1581,8 +1652,9 @@ def setup_norm_problem(ds, settings=None) -> Problem:
     # bias drift of the accelerometer
     unit_of = effects.REGISTRY["bias_drift"].units
     names = [f"accel_warmup_ug[{a}]" for a in AXES] + [f"accel_trend_ug_per_h[{a}]" for a in AXES]
-    c = sg.Candidate("bias_drift", "accel", names, [unit_of["accel_warmup_ug"]] * 3 + [unit_of["accel_trend_ug_per_h"]] * 3,
-                     list(AXES) * 2, kind="drift", keys=[("accel_warmup_ug", (i,)) for i in range(3)]
+    c = sg.Candidate("bias_drift", "accel", names,
+                     [unit_of["accel_warmup_ug"]] * 3 + [unit_of["accel_trend_ug_per_h"]] * 3, list(AXES) * 2,
+                     kind="drift", keys=[("accel_warmup_ug", (i,)) for i in range(3)]
                      + [("accel_trend_ug_per_h", (i,)) for i in range(3)])
     trend = []
     for i in range(3):
@@ -1621,16 +1693,36 @@ def setup_norm_problem(ds, settings=None) -> Problem:
     dof0 = m - 9
     # scatter beyond the sensor noise: estimated against the base model *plus* every attitude-dependent
     # candidate (so that a term of the library is not charged to the noise), like the REML of the vector model
-    full = [J] + [c.S for c in lib if c.S is not None and c.S.shape[1] and not c.untestable and c.kind != "drift"
-                  and c.effect not in ("gravity_error", "temperature_sensitivity")]
-    Af = np.hstack(full) / sr[:, None]
-    thf, _, rkf = _lstsq(Af, r0 / sr)
-    rf = r0 / sr - Af @ thf
-    doff = m - rkf
-    over = float(rf @ rf) / doff if doff > 0 else float("inf")
+    cand_cols = [c.S for c in lib if c.S is not None and c.S.shape[1] and not c.untestable and c.kind != "drift"
+                 and c.effect not in ("gravity_error", "temperature_sensitivity")]
+    yv = r0 / sr
+
+    def scatter(cols):
+        A_ = np.hstack([J] + cols) / sr[:, None]
+        th_, _, rk_ = _lstsq(A_, yv)
+        rr = yv - A_ @ th_
+        return float(rr @ rr), m - rk_
+
+    chi_f, doff = scatter(cand_cols)
+    note_few = ""
     if doff < 5:
-        raise DiagnosisInputError(f"{geom.source}: {m} static segments leave {doff} degrees of freedom for the noise "
-                                  "after the base model and the candidate terms", "record more static positions")
+        # too few segments to hold every candidate: add them greedily (largest chi-square drop first) while
+        # at least max(5, m/4) degrees of freedom remain
+        chosen, rest = [], list(cand_cols)
+        chi_f, doff = scatter([])
+        while rest:
+            trials = [scatter(chosen + [c]) for c in rest]
+            j = int(np.argmin([t[0] for t in trials]))
+            if trials[j][1] < max(5, m // 4):
+                break
+            chosen.append(rest.pop(j))
+            chi_f, doff = trials[j]
+        note_few = (f" ({m} segments cannot hold every candidate: the scatter is estimated with {len(chosen)} of "
+                    f"{len(cand_cols)} candidate terms, the strongest first)")
+    over = chi_f / doff if doff > 0 else float("inf")
+    if dof0 < 3:
+        raise DiagnosisInputError(f"{geom.source}: {m} static segments leave {dof0} degrees of freedom after the "
+                                  "9-parameter norm calibration", "record more static positions")
     scale = math.sqrt(over) if over > 1.0 else 1.0
     Ls = {(0, 0): np.diag(sr * scale)}
     noise_method = ("white noise and quantisation of each static mean from the Allan deviation pooled over the "
@@ -1639,7 +1731,7 @@ def setup_norm_problem(ds, settings=None) -> Problem:
         noise_method += (f"; the segment means scatter {scale:.3g} times more than that (reduced chi-square {over:.3g} "
                          "of the base model plus every attitude-dependent candidate), so every sigma is scaled by "
                          f"{scale:.3g}: the excess (hand placement, vibration, unmodelled physics) is treated as noise "
-                         "and findings are hypotheses")
+                         "and findings are hypotheses") + note_few
     prob = Problem(geom, r0, None, None, Ls, J, lib, {"accel": ya}, n_noise_params=1 if scale > 1 else 0,
                    settings=st, kind="norm", base_names=tuple(f"accel:{n}" for n in form.names))
     prob.base_theta = th
@@ -2004,8 +2096,8 @@ def _proof_csv(summary) -> str:
 
 def _proof_md(out) -> str:
     L = ["# Mismatch diagnosis: concealed-effect proof", "",
-         f"{out['n_seeds']} noise seeds per session (seeds {out['first_seed']}..{out['first_seed'] + out['n_seeds'] - 1}); "
-         f"{out['method']}.", "",
+         f"{out['n_seeds']} noise seeds per session (seeds {out['first_seed']}.."
+         f"{out['first_seed'] + out['n_seeds'] - 1}); {out['method']}.", "",
          "| session | kind | correct | rate (99 % CI) | false disc. | coverage (n) | chi2 before / after (median) | "
          "after p>=0.01 | found |", "|---|---|---|---|---|---|---|---|---|"]
     for s in out["sessions"]:
@@ -2013,7 +2105,8 @@ def _proof_md(out) -> str:
         ci = s["rate_ci99"]
         L.append(f"| {s['session']} | {s['kind']} | {s['correct']}/{s['n_seeds']} | {s['rate']:.3f} "
                  f"[{ci[0]:.3f}, {ci[1]:.3f}] | {s['false_discovery_rate']:.3f} | {cov} | "
-                 f"{s['chi2_before_median']:.1f} / {s['chi2_after_median']:.1f} | {_fmt(s['chi2_after_p_ge_0.01'], 3)} | "
+                 f"{s['chi2_before_median']:.1f} / {s['chi2_after_median']:.1f} | "
+                 f"{_fmt(s['chi2_after_p_ge_0.01'], 3)} | "
                  + "; ".join(f"{k} x{v}" for k, v in s.get("found_counts", {}).items()) + " |")
     L.append("")
     if out.get("power"):
@@ -2024,7 +2117,8 @@ def _proof_md(out) -> str:
             mag = p.get("smallest_magnitude_detected_80pct")
             mags = "; ".join(f"{k}={v}" for e in (mag or {}).values() for k, v in e.items()
                              if not (k.endswith("tau_s") or k == "T_ref_degC")) if mag else "not reached"
-            L.append(f"- {nm}: scale {_fmt(p['smallest_scale_detected_80pct'], 3)} -> {mags} (scale: detected/n = {pts})")
+            L.append(f"- {nm}: scale {_fmt(p['smallest_scale_detected_80pct'], 3)} -> {mags} "
+                     f"(scale: detected/n = {pts})")
         L.append("")
     L.append("## Acceptance")
     L.append("")
