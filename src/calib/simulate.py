@@ -245,6 +245,20 @@ def _temperature_cfg(t: dict | None, where: str) -> dict:
     return t
 
 
+def _unit_cfg(c: dict, where: str):
+    """The simulated unit's settings shared by the calibration and the static sessions: sensor models, noise,
+    effects, conceal flag and temperature profile, each checked (errors name the key)."""
+    acc, gyr = sensor_models(c["sensor"], f"{where}.sensor")
+    noise = _noise_cfg(c["noise"], where)
+    try:
+        eff = effects.resolve(c["effects"], f"{where}.effects")
+    except effects.EffectConfigError as exc:
+        raise SimConfigError(str(exc)) from exc
+    if not isinstance(c["conceal"], bool):
+        raise SimConfigError(f"{where}.conceal: expected true/false")
+    return acc, gyr, noise, eff, _temperature_cfg(c["temperature"], where)
+
+
 def temperature_profile(t, prof: dict) -> np.ndarray:
     """Unit temperature [degC] at times ``t`` [s]: ``end + (start - end) exp(-t / tau)`` (warm-up)."""
     t = np.asarray(t, dtype=float)
@@ -488,15 +502,7 @@ def build_calibration_simulator(cfg: dict, seed: int) -> CalibrationSimulator:
                                 time_grid_s=1.0 / fs)
     except ValueError as exc:
         raise SimConfigError(f"{where}: {exc}") from exc
-    acc, gyr = sensor_models(c["sensor"], f"{where}.sensor")
-    noise = _noise_cfg(c["noise"], where)
-    try:
-        eff = effects.resolve(c["effects"], f"{where}.effects")
-    except effects.EffectConfigError as exc:
-        raise SimConfigError(str(exc)) from exc
-    if not isinstance(c["conceal"], bool):
-        raise SimConfigError(f"{where}.conceal: expected true/false")
-    temp = _temperature_cfg(c["temperature"], where)
+    acc, gyr, noise, eff, temp = _unit_cfg(c, where)
     site0 = effects.SiteTruth(lat, h, float(earth.normal_gravity(math.radians(lat), h)))
     site = effects.apply_truth(site0, eff)
     n = int(math.floor(plan_duration(plan) * fs + 1e-6))
@@ -719,15 +725,7 @@ def _static_physical(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cb
 
 def _static_counts(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cbn, att) -> dict:
     where = "static_session"
-    acc, gyr = sensor_models(c["sensor"], f"{where}.sensor")
-    noise = _noise_cfg(c["noise"], where)
-    try:
-        eff = effects.resolve(c["effects"], f"{where}.effects")
-    except effects.EffectConfigError as exc:
-        raise SimConfigError(str(exc)) from exc
-    if not isinstance(c["conceal"], bool):
-        raise SimConfigError(f"{where}.conceal: expected true/false")
-    temp = _temperature_cfg(c["temperature"], where)
+    acc, gyr, noise, eff, temp = _unit_cfg(c, where)
     site = effects.apply_truth(effects.SiteTruth(lat, h, float(earth.normal_gravity(math.radians(lat), h))), eff)
     w_ib = cbn.T @ earth.earth_rate_enu(math.radians(site.latitude_deg))
     f_b = cbn.T @ np.array([0.0, 0.0, site.gravity_m_s2])
