@@ -20,6 +20,7 @@ include: "workflow/rules/calibration.smk"
 include: "workflow/rules/navigation.smk"
 include: "workflow/rules/drift.smk"
 include: "workflow/rules/real.smk"
+include: "workflow/rules/diagnosis.smk"
 include: "workflow/rules/sweeps.smk"
 include: "workflow/rules/track.smk"
 

@@ -531,7 +531,7 @@ def slow_structure(parts, geom, sensor, tc, cache=None):
 
 
 def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS, *, blocks=None,
-                  method: str = "reml", update: bool = True):
+                  method: str = "reml", update: bool = True, grid_out: dict | None = None):
     """Profile likelihood of the noise of each sensor given the fixed-effect design ``X``, pooled over the
     sensor's three axis blocks (one level, one bias instability for the triad):
 
@@ -542,7 +542,8 @@ def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=
     the error contrasts orthogonal to X (the noise estimate); ``'ml'``: the full likelihood (to compare
     designs). The slow part is kept only when it beats rho = 0 by a BIC margin (2 parameters).
     Returns {sensor: (-2 log L up to a constant shared by all designs, lam, Tc, rho)}; with ``update`` the noise
-    model is set to the optimum (sigma_slow,axis = sqrt(lam rho) N-shape independent)."""
+    model is set to the optimum (sigma_slow,axis = sqrt(lam rho) N-shape independent). ``grid_out``: a dict
+    that receives, per sensor, every grid point as (-2 log L, Tc, rho, lam) (for confidence sets)."""
     cache = {} if cache is None else cache
     out = {}
     keys = blocks if blocks is not None else [(si, a) for si in range(2) for a in range(3)]
@@ -590,6 +591,9 @@ def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=
                     ld_t = ld_t + np.linalg.slogdet(XtWX)[1]
             lam_hat = rr_t / nfree
             nll = nfree * np.log(lam_hat) + ld_t
+            if grid_out is not None:
+                grid_out.setdefault(s, []).extend(
+                    (float(v), tc, float(r), float(lh)) for v, r, lh in zip(nll, rho, lam_hat))
             if white is None:
                 white = (float(nll[0]), math.inf, 0.0, float(lam_hat[0]))
             j = int(np.argmin(nll))

@@ -83,7 +83,7 @@ def gather_metrics(results_dir) -> dict:
         for k, v in flatten(json.loads(p.read_text())).items():
             try:
                 metrics[f"{key0}.{k}"] = float(v)
-            except ValueError:
+            except (TypeError, ValueError):
                 continue
     return metrics
 

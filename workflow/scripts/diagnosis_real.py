@@ -1,0 +1,6 @@
+"""Rule diagnosis_real: diagnose every shared real recording, and one with a known term injected."""
+from calib import diagnosis_study, runlog
+
+p = snakemake.params
+with runlog.to_file(snakemake.log[0]):
+    diagnosis_study.real_stage(p.out, p.settings, p.config_dir, p.inject or None, snakemake.output.metrics)
