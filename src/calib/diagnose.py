@@ -2086,6 +2086,8 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
     configuration the effects are added to (the study's ``calibration_session``; default :data:`SESSION_BASE`,
     the simulator's defaults at 30.58 deg).
     """
+    # worker processes by fork: spawn would re-import the caller's __main__ (a Snakemake rule script cannot be
+    # re-imported); every worker seeds itself, so the result does not depend on the number of workers
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing as mp
 
@@ -2100,7 +2102,7 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
     def run(jobs_):
         res_ = []
         if workers > 1:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as ex:
                 for r in ex.map(_proof_worker, jobs_):
                     res_.append(r)
                     if progress:

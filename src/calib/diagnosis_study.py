@@ -189,7 +189,8 @@ def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=
     if unknown:
         raise ValueError(f"diagnosis.proof.sessions: unknown session(s) {unknown}; known: {list(dg.PROOF_SESSIONS)}")
     out_dir = Path(out_dir)
-    prog = Progress(len(names) * (1 + (5 if power_seeds else 0)), label="proof sessions", every_s=0.0)
+    n_single = sum(dg.PROOF_SESSIONS[nm][0] == "single" for nm in names)
+    prog = Progress(len(names) + (5 * n_single if power_seeds else 0), label="proof sessions", every_s=0.0)
     log(f"proof: {len(names)} sessions x {n_seeds} seeds (first seed {first_seed}), {workers} worker(s)"
         + (f"; detection power with {power_seeds} seeds per magnitude" if power_seeds else ""))
     if base is not None:
