@@ -408,3 +408,164 @@ def test_zscores_with_sigma_from_allan_on_recordings():
         zg.append((rg.x - GYR.to_vector()) / rg.se)
     for z in (np.array(za), np.array(zg)):
         _check_z(z, 0.5, 0.7, 1.3)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# slow noise (bias instability) from a long static record: closed forms and correlated segment means
+# ---------------------------------------------------------------------------------------------------------
+from calib import allan  # noqa: E402
+from calib import noisecov as nc  # noqa: E402
+
+
+def _gm_record(sigma, tc, fs, n, rng):
+    """Exact discretisation of a stationary Gauss-Markov process: beta_k = a beta_k-1 + sigma sqrt(1-a^2) z_k."""
+    from scipy.signal import lfilter
+
+    a = math.exp(-1.0 / (fs * tc))
+    z = rng.normal(size=n) * sigma * math.sqrt(1.0 - a * a)
+    z[0] = rng.normal() * sigma
+    return lfilter([1.0], [1.0, -a], z)
+
+
+def test_allan_deviation_of_gauss_markov_matches_closed_form_and_fit_recovers_it():
+    """AVAR of a simulated GM process against eq. (1) of calib.noisecov, inside allan.py's 95 % intervals, and
+    the white + GM fit recovers N, sigma, Tc."""
+    rng = np.random.default_rng(31)
+    fs, sigma, tc, N = 10.0, 2.0, 30.0, 1.5  # Hz, unit, s, unit s^1/2
+    n = 2**20  # 29 h: ~3500 correlation times
+    gm = _gm_record(sigma, tc, fs, n, rng)
+    r = allan.adev(gm[:, None], fs)
+    sel = (r.tau >= 1.0) & (r.tau <= 2000.0)
+    exact = np.sqrt(nc.gm_avar(r.tau[sel], sigma, tc))
+    ratio = r.adev[sel, 0] / exact
+    short = r.tau[sel] <= tc  # thousands of independent terms: tight
+    assert np.all(np.abs(ratio[short] - 1.0) < 0.03), ratio
+    inside = (exact >= r.lo[sel, 0]) & (exact <= r.hi[sel, 0])
+    assert inside.mean() >= 0.8, inside
+    assert np.all((exact >= 0.8 * r.lo[sel, 0]) & (exact <= 1.25 * r.hi[sel, 0]))
+    # small-tau limit: a random walk with K^2 = 2 sigma^2 / tc
+    assert nc.gm_avar(1e-4, sigma, tc) == pytest.approx(2 * sigma**2 / tc * 1e-4 / 3, rel=1e-3)
+    # fit white + GM on the sum (as on a long static record)
+    y = gm + rng.normal(size=n) * N * math.sqrt(fs)
+    m = nc.fit_mean_noise([allan.adev(np.column_stack([y, y, y]), fs)], tau_min_s=0.5, unit="u")
+    assert m.slow[0] == "gm"
+    assert m.N[0] == pytest.approx(N, rel=0.05)
+    assert m.sigma[0] == pytest.approx(sigma, rel=0.15)
+    assert m.tc[0] == pytest.approx(tc, rel=0.4)
+    lo, hi = m.fit[0]["sigma_ci95"]
+    assert lo < m.sigma[0] < hi
+
+
+def _quad_cov(kernel, t0, T, n=1500):
+    """Double integral of kernel(s, t) over windows j, k divided by T_j T_k, midpoint rule."""
+    pts = [a + (np.arange(n) + 0.5) / n * d for a, d in zip(t0, T)]
+    return np.array([[kernel(p[:, None], q[None, :]).mean() for q in pts] for p in pts])
+
+
+def test_window_mean_covariances_equal_their_double_integrals():
+    t0, T, tc = np.array([0.0, 65.0, 300.0, 130.0]), np.array([60.0, 60.0, 24.0, 36.0]), 300.0
+    C = nc.gm_mean_cov(t0, T, tc)
+    Cq = _quad_cov(lambda s, t: np.exp(-np.abs(s - t) / tc), t0, T)
+    assert np.allclose(C, Cq, rtol=1e-4, atol=1e-6)
+    R = nc.rw_mean_cov(t0, T)
+    Rq = _quad_cov(np.minimum, t0, T)
+    assert np.allclose(R, Rq, rtol=1e-4)
+    # M touching windows of length T average to one window of length M T: 1^T C 1 / M^2 = var(M T mean)
+    M, Tw = 8, 50.0
+    Ct = nc.gm_mean_cov(np.arange(M) * Tw, np.full(M, Tw), tc)
+    x = M * Tw / tc
+    assert Ct.sum() / M**2 == pytest.approx(2 * tc**2 / (M * Tw) ** 2 * (x - 1 + math.exp(-x)), rel=1e-12)
+    # white rate + quantisation on the diagonal: N^2/T + 2 Q^2/T^2
+    mdl = nc.MeanNoiseModel("u", Q=np.full(3, 0.3), N=np.full(3, 2.0), slow=["none"] * 3, sigma=np.zeros(3),
+                            tc=np.full(3, np.nan), K=np.zeros(3))
+    assert np.allclose(mdl.mean_cov(t0, T, 0), np.diag(4.0 / T + 2 * 0.09 / T**2))
+
+
+def _static_with_times(sigma_w):
+    st = sg.synthetic_static(ACC, ATT, sigma_w, None, sensor="accel")
+    st.t_start_s = 65.0 * np.arange(st.n)
+    return st
+
+
+def test_common_mode_noise_goes_exactly_into_the_biases():
+    """A shift common to every segment mean of an axis (variance s^2, Tc -> inf) is absorbed by that axis' bias
+    alone: the sandwich covariance of the norm fit (accel) and of eq. 25 (gyro) gains exactly s^2 on b_i."""
+    st = _static_with_times(SIG_A)
+    M = st.n
+    s2 = np.array([0.04, 0.09, 0.16])
+    white = np.stack([np.eye(M) * SIG_A**2] * 3)
+    common = white + s2[:, None, None] * np.ones((M, M))
+    x9 = tri9_truth(ACC)
+    obj = ob.NormObjective(st.means, st.reference, form="tri9", sigma=st.sigma)
+    J = obj.jacobian(x9)
+    scale = np.ones(9)
+    C0 = cal._sandwich_full(J, cal.norm_residual_cov(obj, x9, white), scale)
+    C1 = cal._sandwich_full(J, cal.norm_residual_cov(obj, x9, common), scale)
+    D = np.zeros((9, 9))
+    D[6:, 6:] = np.diag(s2)
+    assert np.allclose(C1 - C0, D, atol=1e-9 * np.abs(C0).max())
+    gs, pr = gyro_data(5)
+    n = 2 * pr.n + gs.n
+    gw = np.stack([np.diag(np.concatenate([pr.sigma_plus[:, i], pr.sigma_minus[:, i], gs.sigma[:, i]]) ** 2)
+                   for i in range(3)])
+    g0 = cal.gyro_components(pr, gs, cov_obs=gw)
+    g1 = cal.gyro_components(pr, gs, cov_obs=gw + 100.0 * s2[:, None, None] * np.ones((n, n)))
+    assert np.allclose(g0.cov, cal.gyro_components(pr, gs).cov)  # diagonal cov_obs = the independent case
+    D = np.zeros((12, 12))
+    D[9:, 9:] = np.diag(100.0 * s2)
+    assert np.allclose(g1.cov - g0.cov, D, atol=1e-9 * np.abs(g0.cov).max())
+
+
+def test_zscores_with_correlated_segment_means_need_the_full_covariance():
+    """Static means with white noise plus a Gauss-Markov bias (Tc = 300 s, 65 s apart) drawn from their exact
+    covariance: with cov_means the bias z-scores are standard normal, with the diagonal sigma alone they are not."""
+    st0 = _static_with_times(0.02)
+    mdl = nc.MeanNoiseModel("count s-1", Q=np.zeros(3), N=np.full(3, 0.14), slow=["gm"] * 3,
+                            sigma=np.full(3, 0.07), tc=np.full(3, 300.0), K=np.zeros(3))
+    C = mdl.mean_cov_axes(st0.t_start_s, st0.duration_s)
+    L = np.linalg.cholesky(C)
+    sd = np.sqrt(np.stack([np.diag(c) for c in C], axis=1))
+    t9 = tri9_truth(ACC)
+    zf, zd = [], []
+    for s in range(120):
+        rng = np.random.default_rng(7000 + s)
+        st = _static_with_times(sd)
+        st.means = st.means + np.einsum("imn,ni->mi", L, rng.normal(size=(st.n, 3)))
+        rf = cal.norm_calibration(st, form="tri9", method="lsq", rng=rng, cov_means=C)
+        rd = cal.norm_calibration(st, form="tri9", method="lsq", rng=rng)
+        assert np.allclose(rf.x, rd.x)  # the estimate does not change, only its covariance
+        zf.append((rf.x - t9) / rf.se)
+        zd.append((rd.x - t9) / rd.se)
+    zf, zd = np.array(zf), np.array(zd)
+    _check_z(zf, 0.35, 0.75, 1.25)
+    assert np.all(zd[:, 6:].std(axis=0, ddof=1) > 1.5)  # independent-means SEs of the biases: far too small
+
+
+def test_default_calibration_with_and_without_a_long_static_record(tmp_path):
+    """Recording chain: without a long record the result says the bias instability is not in the sigma (and what
+    record would fix it); with one, the same estimates get the slow part, and the window times are the plan's."""
+    import yaml
+    from pathlib import Path
+
+    from calib import calibration_study as cs
+    from calib import recording, stages
+
+    cfg = yaml.safe_load((Path(__file__).parents[1] / "config" / "config.yaml").read_text())
+    s = dict(cfg["calibration_session"], dwell_s=20.0, rotation_rates_deg_s=[30.0], revolutions=1)
+    stages.simulate_calibration(s, cfg["site"], 3, tmp_path / "s.nc", tmp_path / "s.json")
+    stages.simulate_static_check(dict(cfg["static_check"], duration_h=0.3), s, cfg["site"], 4, tmp_path / "l.nc",
+                                 tmp_path / "l.json")
+    inp = sg.extract(recording.load(tmp_path / "s.nc"))
+    st = inp.accel_static
+    assert np.all(np.diff(st.t_start_s) > st.duration_s[:-1])  # windows in time order, disjoint
+    cc = dict(cfg["calibration"], NP=20, EG=60)
+    d0 = cs.default_calibration(inp, cc, 1)
+    assert "does NOT include bias instability" in d0["noise_note"] and "noise_record" in d0["noise_note"]
+    assert any("does NOT include" in n for n in d0["accel"].notes)
+    noise = cs.noise_models(inp, tmp_path / "l.nc", cc)
+    assert noise["accel"].slow[2] in ("gm", "rw")
+    d1 = cs.default_calibration(inp, cc, 1, noise=noise)
+    assert np.allclose(d1["accel"].x, d0["accel"].x) and np.allclose(d1["gyro"].x, d0["gyro"].x)
+    assert "long static record" in d1["noise_note"]
+    assert any("full covariance" in n for n in d1["accel"].notes + d1["gyro"].notes)
+    assert np.all(np.isfinite(d1["accel"].se) & (d1["accel"].se > 0)) and np.all(d1["gyro"].se > 0)

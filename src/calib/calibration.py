@@ -184,6 +184,23 @@ def _sandwich(J, sigma_r, scale, rcond=1e-8):
     return Cs * scale[:, None] * scale[None, :]
 
 
+def _sandwich_full(J, C_r, scale, rcond=1e-8):
+    """C = J^+ C_r J^+T for correlated residuals of covariance ``C_r`` (M, M), in scaled coordinates."""
+    Js = J * scale[None, :]
+    Jp = np.linalg.pinv(Js, rcond=rcond)
+    Cs = Jp @ C_r @ Jp.T
+    return Cs * scale[:, None] * scale[None, :]
+
+
+def norm_residual_cov(obj, theta, cov_means):
+    """Covariance (M, M) of the eq. 7 residuals r_m = ref^2 - |x_m|^2 from the covariance of the means.
+
+    dr_m / dN_m = -2 u_m^T with u_m = (K E)^-T x_m, axes independent, so
+    C_r[m, n] = sum_i 4 u_mi u_ni C_i[m, n], C_i = ``cov_means[i]`` (M, M) [output unit^2] of axis i."""
+    _, _, u = obj._u(theta)
+    return 4.0 * np.einsum("mi,ni,imn->mn", u, u, np.asarray(cov_means, dtype=float))
+
+
 def _weighted_cov(Jw, scale, rcond=1e-8):
     Js = Jw * scale[None, :]
     Cs = np.linalg.pinv(Js.T @ Js, rcond=rcond**2, hermitian=True)
@@ -303,7 +320,8 @@ def _linear_result(sensor, method, M, b, cov_lin, chi2, dof, static, notes, fram
 # norm calibration (seed 000 eq. 7)
 # ---------------------------------------------------------------------------------------------------------
 def norm_calibration(static: StaticMeans, *, form: str = "tri9", method: str = "ide_lsq", rng=None, seed: int = 0,
-                     budget=(60, 1200), bounds=None, weighted: bool = False, KE=None, **opts) -> CalibrationResult:
+                     budget=(60, 1200), bounds=None, weighted: bool = False, KE=None, cov_means=None,
+                     **opts) -> CalibrationResult:
     """Norm-observed calibration of one triad from its static means: minimise L_a / L_g (seed 000 eq. 7).
 
     form: 'tri9' (default; identified, rank 9), 'paper12' (the paper's form, rank 9 of 12), 'bias3' (biases
@@ -312,6 +330,10 @@ def norm_calibration(static: StaticMeans, *, form: str = "tri9", method: str = "
     only; for tri9 the installation-error range is doubled, since the gauge folds the triad's rotation into
     Eyx, Ezx, Ezy). ``rng`` (or ``seed``) drives the optimiser. ``weighted``: after the optimiser, re-polish with the
     residuals divided by their sigma (the BLUE-like variant; eq. 7 itself is unweighted).
+    ``cov_means`` (3, M, M): full covariance of the static means per axis [output unit^2], e.g. with the
+    correlated bias instability of ``calib.noisecov`` (default ``static.cov_axes``; None: independent means
+    with std ``static.sigma``). The estimate is unchanged (eq. 7 is unweighted); its covariance is the sandwich
+    ``C = J^+ C_r J^+T`` with ``C_r`` from :func:`norm_residual_cov`, and chi2 = r^T C_r^-1 r.
     """
     needed = {"tri9": 10, "paper12": 10, "bias3": 4}[form]
     require_positions(static, needed, f"the norm calibration (eq. 7, form {form}: "
@@ -331,11 +353,23 @@ def norm_calibration(static: StaticMeans, *, form: str = "tri9", method: str = "
         obj.set_weights(x)
     J = obj.jacobian(x)
     scale = hi - lo
+    if cov_means is None:
+        cov_means = static.cov_axes
+    if weighted and cov_means is not None:
+        raise ValueError("weighted=True with a full covariance of the means is not implemented; use the "
+                         "unweighted fit (the sandwich covariance accounts for the correlation)")
     if weighted:
         cov = _weighted_cov(J, scale)
         rw = obj.residuals(x)
         chi2 = float(rw @ rw)
         obj.weighted = False
+    elif cov_means is not None:
+        C_r = norm_residual_cov(obj, x, cov_means)
+        cov = _sandwich_full(J, C_r, scale)
+        r = obj.residuals(x)
+        chi2 = float(r @ np.linalg.solve(C_r, r))
+        notes.append("covariance: sandwich with the full covariance of the static means (noise model with the "
+                     "slow part, correlated between segments)")
     else:
         sr = obj.residual_sigma(x)
         cov = _sandwich(J, sr, scale)
@@ -393,12 +427,14 @@ def _bias_observations(M, pairs, static, bias_from):
     return np.sum(w * obs, axis=0) / np.sum(w, axis=0), obs, sig
 
 
-def _eq25_covariance(pairs, static, w, bias_from):
+def _eq25_covariance(pairs, static, w, bias_from, cov_obs=None):
     """Exact covariance of [vec(K E), b] of :func:`gyro_components` (linear in the means).
 
     Output axis i only involves column i of the means: row i of K E = P_i (plus_i - minus_i) with the
     weighted least-squares operator P_i of eq. 25, and b_i = sum_k c_ik (o_ik - u_k . M_i) with the
     normalised weights c_ik of the bias observations o_k (pair means and/or static means, inputs u_k).
+    With ``cov_obs`` (3, n, n), the covariance of the means of axis i ordered [plus (J), minus (J), static (M)]
+    (correlated noise, ``calib.noisecov``): C_i = A C_obs,i A^T instead of A diag(sigma^2) A^T.
     """
     J = pairs.n
     sd = np.hypot(pairs.sigma_plus, pairs.sigma_minus)
@@ -435,14 +471,18 @@ def _eq25_covariance(pairs, static, w, bias_from):
         A[3] -= ubar @ A[:3]
         sig = np.concatenate([pairs.sigma_plus[:, i], pairs.sigma_minus[:, i]]
                              + ([static.sigma[:, i]] if nst else []))
-        Ci = (A * sig[None, :] ** 2) @ A.T
+        if cov_obs is not None:
+            Cobs = np.asarray(cov_obs[i], dtype=float)[:n, :n]
+            Ci = A @ Cobs @ A.T
+        else:
+            Ci = (A * sig[None, :] ** 2) @ A.T
         idx = [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
         cov[np.ix_(idx, idx)] = Ci
     return cov
 
 
 def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, bias_from: str = "auto",
-                    rng=None, seed: int = 0, budget=(60, 200), bounds=None) -> CalibrationResult:
+                    rng=None, seed: int = 0, budget=(60, 200), bounds=None, cov_obs=None) -> CalibrationResult:
     """Gyro calibration by the component form of seed 000 eq. 25 (default gyro method).
 
     K E from the pair differences: (N+_j - N-_j) = K E (r+_j - r-_j) a_j (linear least squares per output
@@ -450,7 +490,9 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
     (``bias_from``): 'pairs' = (N+ + N-)/2 - K E (mean input of the pair: Earth rate along the axis);
     'static' = N_m - K E C_n^b omega_ie^n at the static positions; 'both'; 'norm' = static norm (eq. 7) with
     K E held, seed 000 §3.3 (needs no attitudes); 'auto' = 'both' if attitudes are known, else 'norm'.
-    Covariance: the estimator is linear in the means, propagated exactly (norm: linearised).
+    Covariance: the estimator is linear in the means, propagated exactly (norm: linearised). ``cov_obs``
+    (3, n, n): full covariance per axis of the means ordered [plus (J), minus (J), static (M)] [output unit^2]
+    (``calib.noisecov.eq25_cov``; correlated bias instability); not for ``bias_from='norm'``.
     """
     d, sd = pairs.difference()
     w = pairs.delta_input()
@@ -465,6 +507,8 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
                      else "static" if have_static_att else "norm")
     if bias_from in ("static", "both", "norm") and static is None:
         raise SegmentError(f"bias_from={bias_from!r} needs the static gyro means")
+    if cov_obs is not None and bias_from == "norm":
+        raise ValueError("cov_obs (correlated means) is not implemented for bias_from='norm'")
     notes = [f"K E from the component form of eq. 25 ({pairs.n} pairs); biases from {bias_from}"]
     J, nst = pairs.n, 0 if static is None else static.n
     if bias_from == "norm":
@@ -486,7 +530,7 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
         cov_lin = _propagate_linear(est, y0, s0)
     else:
         b, _, _ = _bias_observations(M, pairs, static, bias_from)
-        cov_lin = _eq25_covariance(pairs, static, w, bias_from)
+        cov_lin = _eq25_covariance(pairs, static, w, bias_from, cov_obs)
     # chi-square: pair-difference fit + bias observations' scatter
     rd = (d - w @ M.T) / sd
     chi2 = float(np.sum(rd**2))
@@ -498,6 +542,9 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
     res = _linear_result("gyro", "eq. 25 components", M, b, cov_lin, chi2, dof, static, notes=notes,
                          objective_L=static is not None, units=(pairs.input_unit, pairs.output_unit))
     res.objective = "L_g (eq. 7) at the solution" if static is not None else ""
+    if cov_obs is not None:
+        res.notes.append("covariance with the full covariance of the means (noise model with the slow part, "
+                         "correlated between windows); chi2 uses the independent sigmas")
     res.derived["L_gm"] = ob.LgmObjective(d, w)(ob.Form("ke9").from_KE_b(M))
     return res
 

@@ -19,7 +19,7 @@ from . import figures
 from . import identifiability as idf
 from . import objectives as ob
 from . import optimizers as opt
-from . import recording, segments
+from . import noisecov, recording, segments
 from .ncio import write_netcdf
 from .runlog import Progress
 from .sensors import PARAM_NAMES, TriadModel
@@ -132,8 +132,11 @@ def _map_tasks(inp, ccfg, tasks, workers, progress):
     return out
 
 
-def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=None, log=print, workers: int = 1):
-    """The whole seed-000 calibration study on one session. Writes into ``out_dir``:
+def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=None, log=print, workers: int = 1,
+              noise_record=None):
+    """The whole seed-000 calibration study on one session. ``noise_record``: path of a long static recording
+    of the same unit (the slow noise of the default calibration's segment means, :func:`noise_models`), or
+    None. Writes into ``out_dir``:
 
     ``noise.nc`` + ``allan.png``; ``runs/{sensor}_{method}.nc``; ``tables/table2_de_variants.csv``,
     ``table4_gyro_paths.csv``, ``table5_methods.csv``; ``figures/figure{2,3,4,5,6,8}_*.png``;
@@ -198,7 +201,9 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
 
     # ---- identifiability and the default calibration ----
     t = time.perf_counter()
-    default = default_calibration(inp, ccfg, seed)
+    noise = noise_models(inp, noise_record, ccfg) if noise_record else None
+    default = default_calibration(inp, ccfg, seed, noise=noise)
+    log(default["noise_note"])
     timing["default_calibration_s"] = time.perf_counter() - t
     ident = _identifiability(inp, runs, default)
     Path(out / "identifiability.json").write_text(json.dumps(ident, indent=2))
@@ -319,22 +324,78 @@ def _fig_history(path, hist, title, ylabel):
     figures.save(fig, path)
 
 
-def default_calibration(inp, ccfg, seed):
+NO_SLOW_NOISE_NOTE = ("the sigma of the segment means comes from the Allan deviation of the session's own static "
+                      "segments only (tau <= half a segment): it does NOT include bias instability slower than a "
+                      "segment, and the means are treated as independent; the covariance is scaled by the reduced "
+                      "chi-square where the fit scatters more. Give a long static record of the same unit (config "
+                      "calibration.noise_record: static_check, the 2 h static_check recording) to include it")
+
+
+def noise_models(inp, noise_record, ccfg) -> dict:
+    """Noise models (``noisecov.MeanNoiseModel``) of both triads from the session's static segments and the
+    long static record ``noise_record`` (path or loaded recording of the same unit at rest); the shortest
+    tau used is ``ccfg['noise_tau_min_s']`` (default 5 s)."""
+    ds = noise_record if isinstance(noise_record, xr.Dataset) else recording.load(noise_record)
+    tau_min = float(ccfg.get("noise_tau_min_s", 5.0))
+    return {s: noisecov.triad_noise(getattr(inp, f"{s}_noise"), ds, s, tau_min_s=tau_min) for s in ("accel", "gyro")}
+
+
+def default_calibration(inp, ccfg, seed, noise: dict | None = None):
     """The project's default: accelerometers by the identified 9-parameter norm form (IDE + polish), rotated
     into the body frame of the gyros with the nominal attitudes (the separate calibration's K E as reference;
-    without attitudes the rotation stays unidentified and is reported), gyros by eq. 25."""
+    without attitudes the rotation stays unidentified and is reported), gyros by eq. 25.
+
+    Standard errors. With ``noise`` (:func:`noise_models`, from a long static record of the same unit) the
+    covariance of the segment means is the full one of ``calib.noisecov`` (white + quantisation + the slow
+    Gauss-Markov / random-walk bias, correlated between segments), propagated through both estimators
+    (accelerometers: sandwich J^+ C_r J^+T of the unweighted eq. 7; gyros: A C A^T of the linear eq. 25
+    estimator); the estimates themselves do not change. The covariance is scaled by the reduced chi-square only
+    if the chi-square rejects the noise model (p < 0.001, noted). Without ``noise``: independent means with the
+    in-segment Allan sigma, scaled by the reduced chi-square (:func:`_inflate_by_scatter`), and
+    ``noise_note`` says the bias instability is not included."""
     method = ccfg["default_method"]
+    covs = noisecov.observation_covs(inp, noise) if noise is not None else {"accel_static": None, "gyro_eq25": None}
     acc = cal.norm_calibration(inp.accel_static, form="tri9", method=method, rng=np.random.default_rng(seed + 5),
-                               budget=(ccfg["NP"], ccfg["EG"]), **method_options(method, ccfg))
-    _inflate_by_scatter(acc)
+                               budget=(ccfg["NP"], ccfg["EG"]), cov_means=covs["accel_static"],
+                               **method_options(method, ccfg))
+    if noise is None:
+        _inflate_by_scatter(acc)
+        noise_note = NO_SLOW_NOISE_NOTE
+        acc.notes.append(noise_note)
+    else:
+        _inflate_if_rejected(acc)
+        noise_note = ("sigma and correlation of the segment means from a noise model fitted to the Allan deviation "
+                      "of the session's static segments and of a long static record of the same unit (includes "
+                      "the bias instability): accel " + "; ".join(noise["accel"].describe(a) for a in range(3))
+                      + " | gyro " + "; ".join(noise["gyro"].describe(a) for a in range(3)))
     ref = None
     frame_note = "accelerometer triad frame (rotation to the gyro frame unidentified: no nominal attitudes)"
     if inp.accel_static.attitude is not None:
         sep = cal.separate_accel(inp.accel_static)
         ref = sep.KE
         frame_note = "body frame realised by the nominal table attitudes (triad rotation fixed by the separate calibration)"
-    gyro = cal.gyro_components(inp.gyro_pairs, inp.gyro_static) if inp.gyro_pairs is not None else None
-    return {"accel": acc, "accel_reference": ref, "gyro": gyro, "frame_note": frame_note}
+    gyro = (cal.gyro_components(inp.gyro_pairs, inp.gyro_static, cov_obs=covs["gyro_eq25"])
+            if inp.gyro_pairs is not None else None)
+    if gyro is not None and noise is None:
+        gyro.notes.append(NO_SLOW_NOISE_NOTE)
+    return {"accel": acc, "accel_reference": ref, "gyro": gyro, "frame_note": frame_note, "noise_note": noise_note,
+            "noise_model": None if noise is None else {s: m.to_dict() for s, m in noise.items()}}
+
+
+def _inflate_if_rejected(res, p_reject: float = 1e-3):
+    """With a full noise model the chi-square r^T C_r^-1 r should follow chi-square(dof); only when it rejects
+    the model (upper tail p < ``p_reject``) is the covariance scaled by the reduced chi-square (noted)."""
+    from scipy import stats
+
+    if res.dof > 0 and np.isfinite(res.chi2):
+        p = float(stats.chi2.sf(res.chi2, res.dof))
+        res.derived["chi2_p"] = p
+        if p < p_reject:
+            f = res.chi2 / res.dof
+            res.cov = res.cov * f
+            res.notes.append(f"chi-square {res.chi2:.3g} on {res.dof} dof rejects the noise model (p = {p:.2g}): "
+                             f"covariance scaled by the reduced chi-square {f:.3g}")
+    return res
 
 
 def _inflate_by_scatter(res):
@@ -355,7 +416,8 @@ def _inflate_by_scatter(res):
 def write_default(default, json_path, nc_path, prov, true_vec):
     acc, gyro, ref = default["accel"], default["gyro"], default["accel_reference"]
     vec_a, R = acc.paper_form(ref)
-    out = {"frame": default["frame_note"], "accel": acc.to_dict(), "accel_body_vector": dict(zip(PARAM_NAMES, map(float, vec_a))),
+    out = {"frame": default["frame_note"], "noise": default.get("noise_note"),
+           "noise_model": default.get("noise_model"), "accel": acc.to_dict(), "accel_body_vector": dict(zip(PARAM_NAMES, map(float, vec_a))),
            "accel_rotation_to_body": R.tolist(),
            "gyro": None if gyro is None else gyro.to_dict(),
            "how_to_apply": "N = counts/dt (count s-1); x = (K E)^-1 (N - b) in g (accel) and deg/h (gyro), body frame"}
@@ -413,18 +475,40 @@ def _identifiability(inp, runs, default):
     return rep
 
 
-def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int, out_csv, fig, metrics_path,
-                workdir, log=print):
-    """The default calibration over ``n_seeds`` simulated sessions (the data stage's generator, full noise
-    model): z = (estimate - truth) / standard error of every identified parameter, with the sigma of every
-    segment mean estimated from the data (pooled Allan deviation). Accelerometers: the identified 9-parameter
-    norm form against the truth in the same gauge; gyros: eq. 25 components."""
-    from . import stages
-    from .sensors import TriadModel
+def z_noise_mode(ccfg: dict) -> str:
+    """How the z-score study gets its long static record: 'none' (``calibration.noise_record`` unset), 'per_seed'
+    (default: a fresh record of the same unit simulated for every seed, so the noise estimate is resampled
+    too) or 'shared' (``calibration.z_noise_record: shared``: the one static_check recording for all seeds)."""
+    if ccfg.get("noise_record") in (None, "none", False):
+        return "none"
+    return str(ccfg.get("z_noise_record", "per_seed"))
 
+
+def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int, out_csv, fig, metrics_path,
+                workdir, log=print, check: dict | None = None, noise_record=None):
+    """The default calibration over ``n_seeds`` simulated sessions (the data stage's generator, full noise
+    model): z = (estimate - truth) / standard error of every identified parameter. Accelerometers: the
+    identified 9-parameter norm form against the truth in the same gauge; gyros: eq. 25 components.
+
+    Standard errors (:func:`default_calibration`): with a long static record (:func:`z_noise_mode`: 'per_seed'
+    simulates one per seed from the ``check`` config, i.e. the static_check settings, seed ``seed0 + 100000 +
+    k``; 'shared' uses ``noise_record``) from the noise model with the slow part; the z-scores of the
+    segment-only sigma (today's behaviour without a record) are reported next to them for the same seeds
+    (columns ``*_segment_sigma``). Without a record only the segment-only z-scores (``mean_z``, ``std_z``)."""
+    from . import stages
+
+    mode = z_noise_mode(ccfg)
+    if mode == "per_seed" and check is None:
+        raise ValueError("calibration.noise_record is set: the z-score study needs the static_check settings (check)")
+    if mode == "shared" and not noise_record:
+        raise ValueError("calibration.z_noise_record = shared needs the static_check recording (noise_record)")
+    if mode not in ("none", "per_seed", "shared"):
+        raise ValueError(f"calibration.z_noise_record: {mode!r}; use per_seed or shared")
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
-    za, zg, names_a, names_g = [], [], None, None
+    shared = recording.load(noise_record) if mode == "shared" else None
+    z = {"with": {"accel": [], "gyro": []}, "segment": {"accel": [], "gyro": []}}
+    names = {}
     bar = Progress(n_seeds, "noise seeds")
     for k in range(n_seeds):
         rec, tru = workdir / f"s{k}.nc", workdir / f"s{k}.truth.json"
@@ -433,39 +517,78 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
         inp = segments.extract(recording.load(rec))
         rec.unlink()
         tru.unlink()
-        d = default_calibration(inp, ccfg, seed0 + k)
+        noise = None
+        if mode == "per_seed":
+            lrec, ltru = workdir / f"l{k}.nc", workdir / f"l{k}.truth.json"
+            stages.simulate_static_check(check, session, site, seed0 + 100_000 + k, lrec, ltru)
+            noise = noise_models(inp, recording.load(lrec), ccfg)
+            lrec.unlink()
+            ltru.unlink()
+        elif mode == "shared":
+            noise = noise_models(inp, shared, ccfg)
         ta = _truth_vector(truth, "accel")
         Mt, bt = ob.Form("paper12").KE_b(ta)
         L, _ = ob.lower_triangular_gauge(Mt)
         t9 = ob.Form("tri9").from_KE_b(L, bt)
-        za.append((d["accel"].x - t9) / d["accel"].se)
-        names_a = d["accel"].names
-        g = d["gyro"]
-        tg = _match(g, _truth_vector(truth, "gyro"))
-        zg.append((g.x - tg) / g.se)
-        names_g = g.names
+        tg = None
+        for key, nz in (("segment", None), ("with", noise)):
+            if key == "with" and noise is None:
+                continue
+            d = default_calibration(inp, ccfg, seed0 + k, noise=nz)
+            z[key]["accel"].append((d["accel"].x - t9) / d["accel"].se)
+            g = d["gyro"]
+            tg = _match(g, _truth_vector(truth, "gyro")) if tg is None else tg
+            z[key]["gyro"].append((g.x - tg) / g.se)
+            names = {"accel": d["accel"].names, "gyro": g.names}
         bar(k + 1)
-    rows = ["sensor,parameter,mean_z,std_z,n_seeds"]
-    metrics = {}
-    for sensor, z, names in (("accel", np.array(za), names_a), ("gyro", np.array(zg), names_g)):
-        for j, nm in enumerate(names):
-            m, s = float(np.mean(z[:, j])), float(np.std(z[:, j], ddof=1)) if n_seeds > 1 else 0.0
-            rows.append(f"{sensor},{nm},{m:.3f},{s:.3f},{n_seeds}")
-            metrics[f"{sensor}.{nm}"] = {"mean_z": m, "std_z": s}
+    main = "with" if mode != "none" else "segment"
+    header = "sensor,parameter,mean_z,std_z,n_seeds" + (",mean_z_segment_sigma,std_z_segment_sigma" if main == "with"
+                                                        else "")
+    rows = [header]
+    metrics = {"noise_record": mode, "n_seeds": n_seeds, "z": {}}
+    za = {key: {s: np.array(v) for s, v in d.items()} for key, d in z.items() if d["accel"]}
+
+    def ms(a):
+        return float(np.mean(a)), float(np.std(a, ddof=1)) if n_seeds > 1 else 0.0
+
+    for sensor in ("accel", "gyro"):
+        for j, nm in enumerate(names[sensor]):
+            m, sd = ms(za[main][sensor][:, j])
+            row = f"{sensor},{nm},{m:.3f},{sd:.3f},{n_seeds}"
+            ent = {"mean_z": m, "std_z": sd}
+            if main == "with":
+                m0, s0 = ms(za["segment"][sensor][:, j])
+                row += f",{m0:.3f},{s0:.3f}"
+                ent.update(mean_z_segment_sigma=m0, std_z_segment_sigma=s0)
+            rows.append(row)
+            metrics["z"][f"{sensor}.{nm}"] = ent
+    rows.append("# z = (estimate - truth) / standard error; sigma of the segment means: "
+                + ({"none": "segment-only Allan deviation (no long static record: bias instability not included)",
+                    "per_seed": "noise model from the session's segments and a long static record simulated per seed "
+                                "(static_check settings); *_segment_sigma: the segment-only sigma on the same seeds",
+                    "shared": "noise model from the session's segments and the one static_check recording; "
+                              "*_segment_sigma: the segment-only sigma on the same seeds"}[mode]))
     Path(out_csv).write_text("\n".join(rows) + "\n")
     Path(metrics_path).write_text(json.dumps(metrics, indent=2))
     log("\n".join(rows))
     import matplotlib.pyplot as plt
 
     fig_, axs = plt.subplots(1, 2, figsize=(10, 3.5), sharey=True)
-    for ax, (sensor, z, names) in zip(axs, (("accel (9-parameter norm form)", np.array(za), names_a),
-                                            ("gyro (eq. 25)", np.array(zg), names_g))):
-        x = np.arange(len(names))
-        ax.errorbar(x, z.mean(0), yerr=z.std(0, ddof=1) if n_seeds > 1 else None, fmt="o")
+    for ax, (sensor, title) in zip(axs, (("accel", "accel (9-parameter norm form)"), ("gyro", "gyro (eq. 25)"))):
+        x = np.arange(len(names[sensor]))
+        if main == "with":
+            zz = za["segment"][sensor]
+            ax.errorbar(x - 0.15, zz.mean(0), yerr=zz.std(0, ddof=1) if n_seeds > 1 else None, fmt="s", color="0.6",
+                        label="segment-only sigma")
+        zz = za[main][sensor]
+        ax.errorbar(x + (0.15 if main == "with" else 0.0), zz.mean(0), yerr=zz.std(0, ddof=1) if n_seeds > 1 else None,
+                    fmt="o", color="C0", label="with long static record" if main == "with" else "segment-only sigma")
         ax.axhspan(-1, 1, color="C2", alpha=0.15)
-        ax.set_xticks(x, names, rotation=60, fontsize=7)
-        ax.set_title(sensor)
+        ax.set_xticks(x, names[sensor], rotation=60, fontsize=7)
+        ax.set_title(title)
+        ax.legend(fontsize=7)
     axs[0].set_ylabel("z = (estimate − truth) / SE: mean ± std")
     fig_.suptitle(f"Standard errors against the truth over {n_seeds} simulated sessions")
     fig_.tight_layout()
     figures.save(fig_, fig)
+    return metrics

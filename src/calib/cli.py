@@ -4,7 +4,7 @@
     calib simulate navigation OUT.nc [--hours H]
     calib import SETTINGS.yaml OUT.nc
     calib validate RECORDING.nc
-    calib calibrate RECORDING.nc --out DIR [--quick]
+    calib calibrate RECORDING.nc --out DIR [--quick] [--noise-record LONG_STATIC.nc]
     calib fieldcal RECORDING.nc [--settings S.yaml] [--out result.nc]
     calib navigate RECORDING.nc --out errors.nc [--calibration DIR/default_calibration.nc]
     calib diagnose RECORDING.nc --out DIR
@@ -78,7 +78,8 @@ def cmd_calibrate(a):
     cc = dict(cfg["calibration"])
     if a.quick:
         cc.update(runs=3, methods=["ide", "ide_lsq", "lsq"])
-    calibration_study.run_study(a.recording, a.truth, a.out, cc, cfg["seeds"]["calibration"])
+    calibration_study.run_study(a.recording, a.truth, a.out, cc, cfg["seeds"]["calibration"],
+                                noise_record=a.noise_record)
 
 
 def cmd_fieldcal(a):
@@ -135,6 +136,9 @@ def main(argv=None):
     s.add_argument("--truth")
     s.add_argument("--config", default=DEFAULT_CONFIG)
     s.add_argument("--quick", action="store_true", help="3 runs of IDE, IDE+polish and least squares only")
+    s.add_argument("--noise-record", default=None,
+                   help="long static recording of the same unit: its Allan deviation gives the bias instability "
+                        "(slow noise) of the default calibration's segment means")
     s.set_defaults(fn=cmd_calibrate)
     s = sub.add_parser("fieldcal", help="calibration without a turntable record (real recordings)")
     s.add_argument("recording")

@@ -96,7 +96,10 @@ class StaticMeans:
 
     ``means`` (M, 3) rate reading [output_unit]; ``sigma`` (M, 3) std of each mean [output_unit];
     ``duration_s`` (M,); ``attitude`` (M, 3, 3) nominal C_b^n or None; ``reference`` |input| at rest
-    [input_unit] (g or Omega, seed 000 eq. 5).
+    [input_unit] (g or Omega, seed 000 eq. 5). ``t_start_s`` (M,) start of each averaged window [s from the
+    recording's first sample] (None for closed-form means); ``cov_axes`` (3, M, M) full covariance of the means
+    per axis [output_unit^2] when a noise model with the slow part is attached (``calib.noisecov``), else None
+    (independent means with std ``sigma``).
     """
 
     sensor: str
@@ -112,6 +115,8 @@ class StaticMeans:
     segment: np.ndarray | None = None
     noise: allan.AllanResult | None = None
     source: str = ""
+    t_start_s: np.ndarray | None = None
+    cov_axes: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -138,7 +143,8 @@ class RotationMeans:
 
     ``means`` (J, 3) [output_unit]; ``sigma`` (J, 3); ``axis`` (J, 3) unit vector in the body frame;
     ``rate_deg_s`` (J,) signed by the right-hand rule about ``axis``; ``revolutions`` (J,) whole turns
-    averaged; ``attitude`` (J, 3, 3) C_b^n at the segment start or None.
+    averaged; ``attitude`` (J, 3, 3) C_b^n at the segment start or None; ``t_start_s`` (J,) start of each
+    whole-revolution window [s from the recording's first sample] (None for closed-form means).
     """
 
     sensor: str
@@ -155,6 +161,7 @@ class RotationMeans:
     labels: list = field(default_factory=list)
     segment: np.ndarray | None = None
     source: str = ""
+    t_start_s: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -181,7 +188,9 @@ class RotationPairs:
     """Matched + / - rotations about the same axis (seed 000 eqs. 23-26).
 
     ``plus``/``minus`` (J, 3) whole-revolution means; ``sigma_plus``/``sigma_minus``; ``axis`` (J, 3) body frame;
-    ``rate_plus``/``rate_minus`` (J,) signed deg/s about ``axis``; ``attitude`` C_b^n of the + segment.
+    ``rate_plus``/``rate_minus`` (J,) signed deg/s about ``axis``; ``attitude`` C_b^n of the + segment;
+    ``t_plus``/``t_minus`` (J,) window starts [s from the recording's first sample] and
+    ``duration_plus``/``duration_minus`` (J,) [s] (None for closed-form pairs).
     """
 
     plus: np.ndarray
@@ -198,6 +207,10 @@ class RotationPairs:
     attitude_minus: np.ndarray | None = None
     labels: list = field(default_factory=list)
     unpaired: list = field(default_factory=list)
+    t_plus: np.ndarray | None = None
+    t_minus: np.ndarray | None = None
+    duration_plus: np.ndarray | None = None
+    duration_minus: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -258,6 +271,14 @@ def _segment_table(ds):
     return si, ["static"] * nseg, [f"detected static {k}" for k in range(nseg)]
 
 
+def _window_start(ds, i0: int) -> float:
+    """Time of sample ``i0`` [s] from the recording's first sample."""
+    if "time" in ds.coords or "time" in ds:
+        t = ds["time"]
+        return float(t.values[i0] - t.values[0])
+    return i0 / float(ds.attrs["sample_rate_hz"])
+
+
 def _check_not_flat(y, sensor, where):
     if y.shape[0] < 3:
         raise SegmentError(f"{where}: variable '{sensor}': only {y.shape[0]} samples")
@@ -303,7 +324,7 @@ def static_means(ds, sensor: str, *, noise: allan.AllanResult | None = None, sig
     fs = float(ds.attrs["sample_rate_hz"])
     si, kinds, labels = _segment_table(ds)
     trim = int(round(trim_s * fs))
-    means, dur, segs, labs = [], [], [], []
+    means, dur, segs, labs, t0s = [], [], [], [], []
     for s, k in enumerate(kinds):
         if k != "static":
             continue
@@ -312,6 +333,7 @@ def static_means(ds, sensor: str, *, noise: allan.AllanResult | None = None, sig
             idx = idx[trim:len(idx) - trim]
         if len(idx) < min_samples:
             continue
+        t0s.append(_window_start(ds, int(idx[0])))
         means.append(y[idx].mean(axis=0))
         dur.append(len(idx) / fs)
         segs.append(s)
@@ -344,7 +366,7 @@ def static_means(ds, sensor: str, *, noise: allan.AllanResult | None = None, sig
                            "positions with different orientations")
     return StaticMeans(sensor=sensor, means=means, sigma=sig, duration_s=dur, reference=ref, input_unit=in_unit,
                        output_unit=out_unit, latitude_deg=lat, attitude=att, labels=labs, segment=np.array(segs),
-                       noise=noise_used, source=where)
+                       noise=noise_used, source=where, t_start_s=np.array(t0s))
 
 
 def whole_revolution_window(angle_deg, rate_deg_s: float, dt: float):
@@ -391,7 +413,7 @@ def rotation_means(ds, sensor: str = "gyro", *, noise: allan.AllanResult | None 
     rates = np.asarray(ds["rotation_rate"].values, dtype=float)
     axes = np.asarray(ds["rotation_axis"].values, dtype=float)
     ang_all = np.asarray(ds["table_angle"].values, dtype=float) if "table_angle" in ds else None
-    means, dur, revs, segs, labs, ax_out, rt_out = [], [], [], [], [], [], []
+    means, dur, revs, segs, labs, ax_out, rt_out, t0s = [], [], [], [], [], [], [], []
     for s in rot:
         r = rates[s]
         if not (np.isfinite(r) and r != 0.0):
@@ -411,6 +433,7 @@ def rotation_means(ds, sensor: str = "gyro", *, noise: allan.AllanResult | None 
                                f"(|delta angle| = {abs(np.ptp(ang)):.1f} deg) - whole revolutions are needed for the "
                                "Earth rate to average out")
         w = idx[:n]
+        t0s.append(_window_start(ds, int(w[0])))
         means.append(y[w].mean(axis=0))
         dur.append(n * dt)
         revs.append(k)
@@ -430,7 +453,7 @@ def rotation_means(ds, sensor: str = "gyro", *, noise: allan.AllanResult | None 
                          revolutions=np.array(revs), duration_s=dur,
                          input_unit=input_unit or input_unit_for(sensor, out_unit), output_unit=out_unit,
                          latitude_deg=float(ds.attrs["latitude_deg"]), attitude=att, labels=labs,
-                         segment=np.array(segs), source=where)
+                         segment=np.array(segs), source=where, t_start_s=np.array(t0s))
 
 
 def pair_rotations(rot: RotationMeans, rtol: float = 1e-3) -> RotationPairs:
@@ -479,7 +502,10 @@ def pair_rotations(rot: RotationMeans, rtol: float = 1e-3) -> RotationPairs:
                          attitude=None if att is None else att[plus_idx],
                          attitude_minus=None if att is None else att[minus_idx],
                          labels=[f"{rot.labels[a]} / {rot.labels[b]}" for a, b in zip(plus_idx, minus_idx)],
-                         unpaired=[rot.labels[k] for k in np.flatnonzero(~used)])
+                         unpaired=[rot.labels[k] for k in np.flatnonzero(~used)],
+                         t_plus=None if rot.t_start_s is None else rot.t_start_s[plus_idx],
+                         t_minus=None if rot.t_start_s is None else rot.t_start_s[minus_idx],
+                         duration_plus=rot.duration_s[plus_idx], duration_minus=rot.duration_s[minus_idx])
 
 
 def require_positions(static: StaticMeans, needed: int, what: str):

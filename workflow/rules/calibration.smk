@@ -2,8 +2,22 @@
 # identifiability, and the default calibration used by the navigation stage.
 
 
+def noise_record_input(wildcards):
+    """The long static record of the same unit (the slow noise of the default calibration's segment means),
+    when calibration.noise_record = static_check."""
+    return {"noise_record": f"{R}/data/static_check.nc"} if CAL.get("noise_record") == "static_check" else {}
+
+
+def z_noise_record_input(wildcards):
+    """calibration_z reads static_check.nc only in the 'shared' mode; 'per_seed' simulates one per seed."""
+    if CAL.get("noise_record") == "static_check" and CAL.get("z_noise_record", "per_seed") == "shared":
+        return {"noise_record": f"{R}/data/static_check.nc"}
+    return {}
+
+
 rule calibrate:
     input:
+        unpack(noise_record_input),
         recording=f"{R}/data/calibration_session.nc",
         truth=f"{R}/truth/calibration_session.truth.json",
     output:
@@ -35,6 +49,8 @@ rule calibrate:
 
 rule calibration_z:
     """The default calibration over independent noise seeds: z-scores of every identified parameter."""
+    input:
+        unpack(z_noise_record_input),
     output:
         table=report(f"{R}/calibration/zscores.csv", category="2 Calibration (seed 000)", caption="../report/zscores.rst"),
         fig=report(f"{R}/calibration/zscores.png", category="2 Calibration (seed 000)", caption="../report/zscores.rst"),
@@ -43,6 +59,7 @@ rule calibration_z:
         session=sub("calibration_session"),
         site=sub("site"),
         calibration=sub("calibration"),
+        check=sub("static_check"),
         seed=config["seeds"]["data"] + 5000,
         workdir=lambda w, output: os.path.join(os.path.dirname(output.table), "tmp_zscores"),
     log:

@@ -5,4 +5,5 @@ from calib.ncio import provenance
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):
     calibration_study.run_study(snakemake.input.recording, snakemake.input.truth, p.out, p.calibration, p.seed,
-                                prov=provenance(snakemake.rule, dict(p.items()), p.seed), workers=snakemake.threads)
+                                prov=provenance(snakemake.rule, dict(p.items()), p.seed), workers=snakemake.threads,
+                                noise_record=snakemake.input.get("noise_record"))
