@@ -1355,7 +1355,8 @@ def report_markdown(rep: dict) -> str:
     L = [f"# Mismatch diagnosis: {Path(rep.get('recording', '')).name}", ""]
     L.append(f"**Verdict: {rep['verdict']}** -- {rep.get('verdict_reason', '')}")
     L.append("")
-    if rep["verdict"] == "inconclusive":
+    if rep["verdict"] == "inconclusive" and "goodness_of_fit" not in rep:
+        # refused before any fit (bad input): the reason and the fix are all there is to say
         if rep.get("fix"):
             L.append(f"What would fix it: {rep['fix']}")
         return "\n".join(L) + "\n"
@@ -1387,7 +1388,9 @@ def report_markdown(rep: dict) -> str:
         L.append(f"### {f['effect']} ({f['sensor']}), BIC gain {_fmt(f['delta_bic'])}, LRT p = {_fmt(f['p_lrt'], 3)}")
         L.append("")
         L.append(f"Aliases (fit as well, within {rep['settings']['alias_delta_bic']:g} of BIC, or signature angle < "
-                 f"{rep['settings']['alias_angle_deg']:g} deg): {al}")
+                 f"{rep['settings']['alias_angle_deg']:g} deg, or not separable by this path at the estimated "
+                 f"magnitude: discrimination non-centrality < {rep['settings'].get('alias_noncentrality', 13):g}): "
+                 f"{al}")
         L.append("")
         L.append("| parameter | value | 95 % interval | unit |")
         L.append("|---|---|---|---|")
@@ -1600,11 +1603,12 @@ def _diagnose_dataset(ds, out_dir, st, path, library_from):
     return rep, prob
 
 
-def diagnose_recording(path, out_dir, settings=None) -> dict:
+def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_source: str = "") -> dict:
     """``calib diagnose RECORDING.nc --out DIR``: writes DIR/report.json, DIR/report.md and figures.
 
     Works on any ``calib-recording-1`` file with a segment table (synthetic or imported; an imported
-    recording without one gets static segments from :func:`calib.detect.detect_in_recording`). Bad input
+    recording without one gets the static ``intervals`` given -- (m, 2) [start, stop) samples, e.g. those the
+    field calibration used -- or else static segments from :func:`calib.detect.detect_in_recording`). Bad input
     (unreadable file, too short, too few segments, failed calibration, no noise estimate) gives a report
     with verdict ``inconclusive`` and the reason -- never a finding.
     """
@@ -1624,8 +1628,11 @@ def diagnose_recording(path, out_dir, settings=None) -> dict:
         try:
             from . import detect
 
-            det = detect.detect_in_recording(ds)
-            ds = detect.add_segment_table(ds, det)
+            if intervals is not None:
+                ds = detect.add_segment_table(ds, np.asarray(intervals, dtype=np.int64).reshape(-1, 2))
+                ds["segment_index"].attrs["intervals_from"] = intervals_source or "given"
+            else:
+                ds = detect.add_segment_table(ds, detect.detect_in_recording(ds))
         except Exception as exc:  # noqa: BLE001 - any detection failure is an inconclusive input
             rep = inconclusive_report(path, st, f"no segment table and static detection failed: {exc}",
                                       "add a segment table (segment_index, segment_kind)")

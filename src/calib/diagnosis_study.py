@@ -39,11 +39,20 @@ def _write_json(obj, path):
     dg.write_json_atomic(obj, path)
 
 
-def diagnose_session(recording_path, out_dir, settings=None, metrics_path=None, log=print) -> dict:
-    """Diagnose one recording (synthetic or imported) into ``out_dir``; returns the report."""
+def diagnose_session(recording_path, out_dir, settings=None, metrics_path=None, fieldcal_path=None,
+                     log=print) -> dict:
+    """Diagnose one recording (synthetic or imported) into ``out_dir``; returns the report. ``fieldcal_path``:
+    the field calibration of an imported recording without a segment table (``static_intervals`` of
+    ``calib-fieldcal-1``): the diagnosis then tests the same static intervals the calibration used."""
     st = check_settings(settings)
     log(f"diagnosing {recording_path}")
-    rep = dg.diagnose_recording(recording_path, out_dir, st)
+    intervals = None
+    if fieldcal_path:
+        with xr.open_dataset(fieldcal_path) as fc:
+            intervals = np.asarray(fc["static_intervals"].values)
+        log(f"static intervals: the {len(intervals)} of the field calibration ({fieldcal_path})")
+    rep = dg.diagnose_recording(recording_path, out_dir, st, intervals=intervals,
+                                intervals_source=str(fieldcal_path or ""))
     gof = rep.get("goodness_of_fit", {})
     log(f"verdict: {rep['verdict']} -- {rep.get('verdict_reason', '')}")
     for f in rep.get("found", []):

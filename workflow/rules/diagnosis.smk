@@ -4,15 +4,21 @@
 # diagnoses every shared real recording and one with a known term injected.
 
 
-def diagnosis_input():
-    if config.get("recording"):
-        return f"{R}/data/recording.nc"
-    return f"{R}/data/calibration_session.nc"
+def diagnosis_input(wildcards):
+    """The study's recording; for an imported one also its field calibration, whose static intervals the
+    diagnosis tests (calibration -> diagnosis)."""
+    rec = config.get("recording")
+    if rec:
+        out = {"recording": f"{R}/data/recording.nc"}
+        if "fieldcal" in rec:
+            out["fieldcal"] = f"{R}/calibration/fieldcal.nc"
+        return out
+    return {"recording": f"{R}/data/calibration_session.nc"}
 
 
 rule diagnose:
     input:
-        recording=diagnosis_input(),
+        unpack(diagnosis_input),
     output:
         report=f"{R}/diagnosis/report.json",
         md=f"{R}/diagnosis/report.md",
