@@ -257,7 +257,6 @@ def test_zscores_are_standard_normal():
         _check_z(z, 0.5, 0.7, 1.3)
 
 
-@pytest.mark.slow
 def test_zscores_are_standard_normal_tight():
     for z in _zscores(300, 5000):
         _check_z(z, 0.3, 0.85, 1.15)
@@ -396,7 +395,6 @@ def test_recording_errors():
         sg.rotation_means(make_recording(n_static=10, revs=0.8), "gyro")
 
 
-@pytest.mark.slow
 def test_zscores_with_sigma_from_allan_on_recordings():
     """Whole chain: quantised increments -> segment means -> sigma from the pooled Allan deviation -> fits."""
     za, zg = [], []
