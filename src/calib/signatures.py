@@ -907,8 +907,10 @@ EXPERIMENTS = {
 }
 
 
-def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, offset_grid_step=0.0125) -> list:
-    """All candidates with their signature columns at the base solution ``M[s]`` (3x3 = K E), ``b[s]``."""
+def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, offset_grid_step=0.0125,
+                  only: set | None = None) -> list:
+    """All candidates with their signature columns at the base solution ``M[s]`` (3x3 = K E), ``b[s]``;
+    ``only``: just the candidates with these keys (e.g. to rebuild the found terms at a refined K E)."""
     ctx = sample_context(geom)
     cands: list[Candidate] = []
     have_rot = len(geom.rotation) > 0
@@ -930,6 +932,8 @@ def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, off
         return _reduce_term(geom, ctx, d, sensor, Kd[sensor], conv[sensor])
 
     for eid, sensor, layout in _SENSOR_EFFECTS:
+        if only is not None and f"{eid}/{sensor}" not in only:
+            continue
         names, units, axes_, cols, keys = [], [], [], [], []
         unit_of = effects.REGISTRY[eid].units
         for key, kind in layout:
@@ -961,6 +965,8 @@ def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, off
 
     # bias drift: warm-up A exp(-t/tau) + trend s t/3600 per triad, tau profiled on a grid
     for sensor in SENSORS:
+        if only is not None and f"bias_drift/{sensor}" not in only:
+            continue
         pre = "accel" if sensor == "accel" else "gyro"
         wkey, tkey, skey = f"{pre}_warmup_{'ug' if sensor == 'accel' else 'deg_h'}", f"{pre}_tau_s", \
             f"{pre}_trend_{'ug_per_h' if sensor == 'accel' else 'deg_h_per_h'}"
@@ -990,6 +996,8 @@ def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, off
         cands.append(c)
 
     # truth effects: latitude (Earth rate direction + g), gravity, time offset
+    if only is not None and not only & {"latitude_error", "gravity_error", "time_offset"}:
+        return cands
     if xr0 is None or ones0 is None:
         xr0, ones0 = reduced_inputs(geom)
     base_M = {s: KE[s] for s in SENSORS}
