@@ -2,19 +2,6 @@
 # identifiability, and the default calibration used by the navigation stage.
 
 
-def noise_record_input(wildcards):
-    """The long static record of the same unit (the slow noise of the default calibration's segment means),
-    when calibration.noise_record = static_check."""
-    return {"noise_record": f"{R}/data/static_check.nc"} if CAL.get("noise_record") == "static_check" else {}
-
-
-def z_noise_record_input(wildcards):
-    """calibration_z reads static_check.nc only in the 'shared' mode; 'per_seed' simulates one per seed."""
-    if CAL.get("noise_record") == "static_check" and CAL.get("z_noise_record", "per_seed") == "shared":
-        return {"noise_record": f"{R}/data/static_check.nc"}
-    return {}
-
-
 rule calibrate:
     input:
         unpack(noise_record_input),

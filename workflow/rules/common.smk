@@ -43,3 +43,28 @@ def all_targets():
         if DIAG.get("real", False):
             t.append(f"{R}/diagnosis/real/real.json")
     return t
+
+
+def noise_record_input(wildcards):
+    """The long static record of the same unit (the slow noise of the default calibration's segment means),
+    when calibration.noise_record = static_check."""
+    return {"noise_record": f"{R}/data/static_check.nc"} if CAL.get("noise_record") == "static_check" else {}
+
+
+def z_noise_record_input(wildcards):
+    """calibration_z reads static_check.nc only in the 'shared' mode; 'per_seed' simulates one per seed."""
+    if CAL.get("noise_record") == "static_check" and CAL.get("z_noise_record", "per_seed") == "shared":
+        return {"noise_record": f"{R}/data/static_check.nc"}
+    return {}
+
+
+def diagnosis_input(wildcards):
+    """The study's recording; for an imported one also its field calibration, whose static intervals the
+    diagnosis tests (calibration -> diagnosis)."""
+    rec = config.get("recording")
+    if rec:
+        out = {"recording": f"{R}/data/recording.nc"}
+        if "fieldcal" in rec:
+            out["fieldcal"] = f"{R}/calibration/fieldcal.nc"
+        return out
+    return {"recording": f"{R}/data/calibration_session.nc"}

@@ -4,18 +4,6 @@
 # diagnoses every shared real recording and one with a known term injected.
 
 
-def diagnosis_input(wildcards):
-    """The study's recording; for an imported one also its field calibration, whose static intervals the
-    diagnosis tests (calibration -> diagnosis)."""
-    rec = config.get("recording")
-    if rec:
-        out = {"recording": f"{R}/data/recording.nc"}
-        if "fieldcal" in rec:
-            out["fieldcal"] = f"{R}/calibration/fieldcal.nc"
-        return out
-    return {"recording": f"{R}/data/calibration_session.nc"}
-
-
 rule diagnose:
     input:
         unpack(diagnosis_input),
@@ -78,7 +66,7 @@ rule diagnosis_real:
         settings=lambda w: DIAG.get("settings", {}),
         inject=lambda w: DIAG.get("inject", {}),
         out=lambda w, output: os.path.dirname(output.real),
-        config_dir="config/import",
+        config_dir=lambda w, input: os.path.dirname(input.settings[0]),
     log:
         f"{R}/logs/diagnosis_real.log",
     benchmark:
