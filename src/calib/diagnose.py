@@ -32,9 +32,9 @@ Method
 4. **Model it.** Refit with the selected terms: chi-square and residual RMS before/after, residual figures,
    estimates with 95 % intervals (``1.96`` standard errors of the GLS fit; the clock offset and the warm-up
    time constant of a bias drift (profiled on a grid) enter the joint covariance through Gauss-Newton
-   columns at their profile optimum; terms smooth in time have standard errors marginalised over the
-   slow-noise parameters, :func:`slow_se_marginal`), and how the base parameters moved (in
-   their standard errors).
+   columns at their profile optimum; the standard errors of every found sensor term are marginalised over
+   the slow-noise parameters, :func:`slow_se_marginal`), and how the base parameters moved (in their
+   standard errors).
 5. **Report.** verdict (``adequate`` | ``missing_physics`` | ``inconclusive``), ``found[]``, ``absent[]``
    (tested, with 95 % upper bounds), ``untestable[]`` (why, and the experiment that would make it testable).
 
@@ -988,7 +988,8 @@ def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:
     se^2 = E_w[se^2 | noise] + Var_w[estimate | noise]. None when the model is not the vector model or the
     fit keeps no design."""
     c = prob.cand(key)
-    if prob.kind != "vector" or prob.noise is None or f.X is None or key not in f.slices:
+    if (prob.kind != "vector" or prob.noise is None or f.X is None or key not in f.slices
+            or c.sensor not in SENSORS):     # site and clock terms: conditional standard errors
         return None
     s, si = c.sensor, SENSORS.index(c.sensor)
     grid = {}
@@ -1029,12 +1030,15 @@ def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:
     return np.sqrt(w @ var + w @ (th - mean) ** 2)
 
 
-def _param_entries(prob: Problem, f: Fit, key):
+def _param_entries(prob: Problem, f: Fit, key, marginal: bool | None = None):
+    """Value, standard error and 95 % interval of every determined parameter of ``key`` in the fit ``f``.
+    ``marginal`` (default: for terms smooth in time): standard errors marginalised over the slow-noise
+    parameters (:func:`slow_se_marginal`) instead of conditioned on their estimate."""
     c = prob.cand(key)
     sl = f.slices[key]
     se = np.sqrt(np.clip(np.diag(f.cov)[sl], 0.0, None))
     how = "normal, GLS standard error"
-    if is_slow(c):
+    if is_slow(c) if marginal is None else marginal:
         marg = slow_se_marginal(prob, f, key)
         if marg is not None:
             se = marg
@@ -1215,7 +1219,9 @@ def analyse(prob: Problem) -> dict:
     step_info = {s["term"]: s for s in steps}
     for k in final.terms:
         c = prob.cand(k)
-        pars = _param_entries(prob, final, k)
+        # a found term's intervals do not condition on the estimated slow noise: the window means it is
+        # learned from share the bias instability, whose level and Tc rest on few independent samples
+        pars = _param_entries(prob, final, k, marginal=True)
         ent = {"effect": c.effect, "sensor": c.sensor, "key": k,
                "axes": sorted({p["axis"] for p in pars if p["axis"] and abs(p["value"]) > 1.96 * p["se"]}),
                "parameters": pars,
