@@ -158,12 +158,13 @@ class Problem:
     def n(self) -> int:
         return self.y.size
 
-    def whiten(self, A):
-        """L^-1 A block by block (A (n,) or (n, k))."""
+    def whiten(self, A, L=None):
+        """L^-1 A block by block (A (n,) or (n, k)); ``L``: other Cholesky factors than the problem's."""
         A = np.asarray(A, float)
+        L = self.L if L is None else L
         out = np.empty_like(A)
         for key, idx in self.geom.obs["blocks"].items():
-            out[idx] = linalg.solve_triangular(self.L[key], A[idx], lower=True)
+            out[idx] = linalg.solve_triangular(L[key], A[idx], lower=True)
         return out
 
     def sigma(self):
@@ -979,10 +980,11 @@ def locate(prob: Problem, f: Fit) -> dict:
 
 
 def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:
-    """Standard errors of a term smooth in time (bias drift, temperature) marginalised over the slow noise of
-    its sensor instead of conditioned on its point estimate. A slow term and a bias instability trade off,
-    and the level and correlation time of the latter rest on a few independent slow samples, so the GLS
-    standard error at the estimated noise alone undercovers. Over the grid of the restricted likelihood of
+    """Standard errors of a sensor term marginalised over the slow noise of its sensor instead of conditioned
+    on its point estimate (used for every found sensor term, and for the bounds of absent slow terms). The
+    window means a term is learned from share the bias instability, whose level and correlation time rest
+    on a few independent slow samples (for a slow term the two also trade off), so the GLS standard error at
+    the estimated noise alone undercovers. Over the grid of the restricted likelihood of
     the final design (Tc x level, :func:`calib.signatures.profile_noise`), with weights w ~ exp(-dnll/2)
     (points with dnll <= 9.21, i.e. weight >= 1 %), the law of total variance gives
     se^2 = E_w[se^2 | noise] + Var_w[estimate | noise]. None when the model is not the vector model or the
@@ -1006,18 +1008,9 @@ def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:
     w, th, var = [], [], []
     try:
         for nll, tc, rho, lam in use:
-            for a in range(3):
-                nz.scale[s][a] = lam
-                nz.N[s][a] = nz.N_shape[s][a] * math.sqrt(lam)
-                nz.Q[s][a] = nz.Q_shape[s][a] * math.sqrt(lam)
-                nz.slow[s][a] = (tc, math.sqrt(lam * rho))
+            nz.set_level(s, range(3), lam, tc, rho)
             _, L = sg.covariance_blocks(prob.geom, nz, prob.parts, prob.cache)
-            Aw = np.empty_like(f.X)
-            yw = np.empty_like(prob.y)
-            for kb, idx in prob.geom.obs["blocks"].items():
-                Aw[idx] = linalg.solve_triangular(L[kb], f.X[idx], lower=True)
-                yw[idx] = linalg.solve_triangular(L[kb], prob.y[idx], lower=True)
-            theta, cov, _ = _lstsq(Aw, yw)
+            theta, cov, _ = _lstsq(prob.whiten(f.X, L), prob.whiten(prob.y, L))
             w.append(math.exp(-0.5 * (nll - nmin)))
             th.append(theta[sl])
             var.append(np.clip(np.diag(cov)[sl], 0.0, None))
@@ -2200,7 +2193,7 @@ def _scale_effects(eff: dict, s: float) -> dict:
         full = E.resolve({eid: params})[eid]
         new = {}
         for k, v in full.items():
-            if k.endswith("tau_s") or k == "T_ref_degC":
+            if sg.is_shape_parameter(k):
                 new[k] = v
             else:
                 new[k] = (np.asarray(v, float) * s).tolist() if np.ndim(v) else float(v) * s
@@ -2293,7 +2286,7 @@ def _proof_md(out) -> str:
             pts = ", ".join(f"{q['scale']:.3g}: {q['detected']}/{q['n']}" for q in p["points"])
             mag = p.get("smallest_magnitude_detected_80pct")
             mags = "; ".join(f"{k}={v}" for e in (mag or {}).values() for k, v in e.items()
-                             if not (k.endswith("tau_s") or k == "T_ref_degC")) if mag else "not reached"
+                             if not sg.is_shape_parameter(k)) if mag else "not reached"
             L.append(f"- {nm}: scale {_fmt(p['smallest_scale_detected_80pct'], 3)} -> {mags} "
                      f"(scale: detected/n = {pts})")
         L.append("")

@@ -20,6 +20,7 @@ import xarray as xr
 
 from . import diagnose as dg
 from . import figures
+from . import signatures as sg
 from .ncio import write_netcdf
 
 #: the verdicts, in the order used for integer codes in the netCDF
@@ -33,10 +34,6 @@ def check_settings(settings: dict | None, where: str = "diagnosis.settings") -> 
     if unknown:
         raise ValueError(f"{where}: unknown setting(s) {unknown}; known: {sorted(dg.DEFAULT_SETTINGS)}")
     return settings
-
-
-def _write_json(obj, path):
-    dg.write_json_atomic(obj, path)
 
 
 def diagnose_session(recording_path, out_dir, settings=None, metrics_path=None, fieldcal_path=None,
@@ -63,7 +60,7 @@ def diagnose_session(recording_path, out_dir, settings=None, metrics_path=None, 
                "chi2_before": gof.get("before", {}).get("chi2"), "chi2_after": gof.get("after", {}).get("chi2"),
                "p_before": gof.get("before", {}).get("p"), "p_after": gof.get("after", {}).get("p")}
     if metrics_path:
-        _write_json(metrics, metrics_path)
+        dg.write_json_atomic(metrics, metrics_path)
     return rep
 
 
@@ -137,12 +134,13 @@ def _magnitude_text(eff: dict | None) -> str:
     parts = []
     for params in eff.values():
         for k, v in params.items():
-            if k.endswith("tau_s") or k == "T_ref_degC":
+            if sg.is_shape_parameter(k):
                 continue
             a = np.asarray(v, float)
             if a.size == 0 or not np.any(a):
                 continue
-            parts.append(f"{k}={np.array2string(np.round(a, 4), separator=' ') if a.ndim else f'{float(a):.4g}'}")
+            txt = np.array2string(np.round(a, 4), separator=" ", max_line_width=10**6) if a.ndim else f"{float(a):.4g}"
+            parts.append(f"{k}={' '.join(txt.split())}")   # one line: a CSV field holds no newline
     return "; ".join(parts)
 
 
@@ -225,7 +223,7 @@ def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=
     log(Path(out_dir / "proof.md").read_text())
     log(f"wall time {out['_timings']['total_s']:.1f} s")
     if metrics_path:
-        _write_json(metrics, metrics_path)
+        dg.write_json_atomic(metrics, metrics_path)
     return out
 
 
@@ -246,5 +244,5 @@ def real_stage(out_dir, settings=None, config_dir=None, inject=None, metrics_pat
     if inj:
         metrics["injection_named"] = bool(inj["named"])
     if metrics_path:
-        _write_json(metrics, metrics_path)
+        dg.write_json_atomic(metrics, metrics_path)
     return out

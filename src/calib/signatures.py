@@ -59,7 +59,7 @@ import numpy as np
 from scipy import linalg, optimize
 from scipy.interpolate import CubicSpline
 
-from . import allan, earth, effects
+from . import allan, earth, effects, noisecov
 from .recording import STANDARD_GRAVITY
 from .segments import RATE_UNIT_OF_INCREMENT, input_unit_for
 
@@ -423,6 +423,15 @@ class NoiseFit:
             return f"random walk K = {sig:.4g} {self.allan[sensor].unit} s^-1/2"
         return f"Gauss-Markov bias sigma = {sig:.4g} {self.allan[sensor].unit}, Tc = {tc:g} s"
 
+    def set_level(self, sensor: str, axes, lam: float, tc: float, rho: float):
+        """The noise of ``sensor`` on ``axes`` at level ``lam`` (scale of the Allan shape) with a slow part
+        of correlation time ``tc`` and relative variance ``rho`` (sigma_slow = sqrt(lam rho))."""
+        for a in axes:
+            self.scale[sensor][a] = lam
+            self.N[sensor][a] = self.N_shape[sensor][a] * math.sqrt(lam)
+            self.Q[sensor][a] = self.Q_shape[sensor][a] * math.sqrt(lam)
+            self.slow[sensor][a] = (tc, math.sqrt(lam * rho))
+
 
 #: correlation times tried for the slow part of the noise [s]. Slower variations are, by convention, bias
 #: drift: a Gauss-Markov bias with a correlation time beyond the session cannot be told from a drift
@@ -493,21 +502,8 @@ def gm_part(geom: Geometry, sensor: str, tc: float):
     starts = np.cumsum([0] + rows)
     m = starts[-1]
     A = np.zeros((m, m))
-    a0 = np.array([geom.time_s[w.i0] for w in ws])
-    T = np.array([w.n * geom.dt for w in ws])
-    a1 = a0 + T
-    e = np.exp
-    for j in range(len(ws)):
-        for k in range(j, len(ws)):
-            if j == k:
-                x = T[j] / tc
-                v = 2.0 * tc**2 / T[j] ** 2 * (x - 1.0 + e(-x))
-            else:
-                (p0, p1), (q0, q1) = ((a0[j], a1[j]), (a0[k], a1[k])) if a0[j] <= a0[k] else \
-                    ((a0[k], a1[k]), (a0[j], a1[j]))
-                v = tc**2 * (e(-(q0 - p1) / tc) - e(-(q0 - p0) / tc) - e(-(q1 - p1) / tc) + e(-(q1 - p0) / tc)) / \
-                    ((p1 - p0) * (q1 - q0))
-            A[starts[j], starts[k]] = A[starts[k], starts[j]] = v
+    means = starts[:-1]
+    A[np.ix_(means, means)] = noisecov.gm_mean_cov([geom.time_s[w.i0] for w in ws], [w.n * geom.dt for w in ws], tc)
     # harmonic rows: within-window random-walk equivalent (K^2 = 2/tc), uncorrelated with the means
     _, _, AK = covariance_parts(geom, sensor, rw_within_only=True)
     for j in range(len(ws)):
@@ -604,11 +600,7 @@ def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=
         nll_b, tc, rho_b, lam_b = best
         out[s] = (nll_b, lam_b, tc, rho_b)
         if update:
-            for _, a in mine:
-                noise.scale[s][a] = lam_b
-                noise.N[s][a] = noise.N_shape[s][a] * math.sqrt(lam_b)
-                noise.Q[s][a] = noise.Q_shape[s][a] * math.sqrt(lam_b)
-                noise.slow[s][a] = (tc, math.sqrt(lam_b * rho_b))
+            noise.set_level(s, [a for _, a in mine], lam_b, tc, rho_b)
     return out
 
 
@@ -858,10 +850,16 @@ def _reduce_term(geom: Geometry, ctx: SampleContext, d, sensor: str, Kdiag, conv
     return out
 
 
+def is_shape_parameter(key: str) -> bool:
+    """Registry keys that set the shape of an effect (time constants, the reference temperature), not its
+    size: they are neither zeroed for a unit column nor scaled with the magnitude."""
+    return key.endswith("tau_s") or key == "T_ref_degC"
+
+
 def _zero_params(eid):
     p = copy.deepcopy(effects.REGISTRY[eid].defaults)
     for k, v in p.items():
-        if k.endswith("tau_s") or k == "T_ref_degC":
+        if is_shape_parameter(k):
             continue
         p[k] = (np.zeros_like(np.asarray(v, float))).tolist() if np.ndim(v) else 0.0
     return p
