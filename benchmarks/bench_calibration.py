@@ -33,12 +33,12 @@ import time
 
 import numpy as np
 
-from calib import calibration as cal
-from calib import identifiability as idf
-from calib import objectives as ob
-from calib import optimizers as opt
-from calib import segments as sg
-from calib.sensors import seed000_bounds, seed000_model
+from calib.calibration import fit as cal
+from calib.calibration import identifiability as idf
+from calib.calibration import objectives as ob
+from calib.calibration import optimizers as opt
+from calib.signal import segments as sg
+from calib.core.triad import seed000_bounds, seed000_model
 
 METHODS = ["de_rand1", "de_current_to_best1", "de_integration", "ide", "ide_lsq", "ga", "pso", "scipy_de", "lsq"]
 PROBLEMS = ["accel_paper12", "accel_tri9", "gyro_lgm"]

@@ -26,9 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calib import earth, navigation, recording, strapdown
-from calib.strapdown import NavInit
-from calib.transforms import euler_to_dcm
+from calib.core import earth
+from calib.nav import navigation
+from calib.io import recording
+from calib.nav import strapdown
+from calib.nav.strapdown import NavInit
+from calib.core.rotations import euler_to_dcm
 
 LAT = math.radians(30.58)
 ATT = (0.02, -0.01, 0.7)

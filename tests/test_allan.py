@@ -3,7 +3,7 @@ random walk (AVAR = q^2 (2 m^2 + 1) / (6 m), slope +1/2)."""
 import numpy as np
 import pytest
 
-from calib import allan
+from calib.signal import allan
 
 
 def test_white_noise_adev_matches_closed_form_within_ci():

@@ -12,14 +12,14 @@ import warnings
 import numpy as np
 import pytest
 
-from calib import calibration as cal
-from calib import earth
-from calib import identifiability as idf
-from calib import objectives as ob
-from calib import segments as sg
-from calib.recording import make_dataset
-from calib.sensors import seed000_model
-from calib.transforms import axis_angle
+from calib.calibration import fit as cal
+from calib.core import earth
+from calib.calibration import identifiability as idf
+from calib.calibration import objectives as ob
+from calib.signal import segments as sg
+from calib.io.recording import make_dataset
+from calib.core.triad import seed000_model
+from calib.core.rotations import axis_angle
 
 ACC = seed000_model("accel")
 GYR = seed000_model("gyro")
@@ -362,7 +362,7 @@ def test_full_chain_from_recording(recording):
 
 
 def test_static_detector_hook(recording, monkeypatch):
-    """Without a segment table the static segments come from calib.detect.detect_static(accel, gyro, fs)
+    """Without a segment table the static segments come from calib.signal.detect.detect_static(accel, gyro, fs)
     (``.intervals`` [start, stop)); replaced here by the known segments to test the hook itself."""
     import sys
     import types
@@ -373,15 +373,15 @@ def test_static_detector_hook(recording, monkeypatch):
     kinds = recording["segment_kind"].values
     ranges = [(int(np.flatnonzero(si == s)[0]), int(np.flatnonzero(si == s)[-1]) + 1)
               for s in range(len(kinds)) if kinds[s] == "static"]
-    fake = types.ModuleType("calib.detect")
+    fake = types.ModuleType("calib.signal.detect")
     fake.detect_static = lambda accel, gyro, fs: types.SimpleNamespace(intervals=np.array(ranges))
-    monkeypatch.setitem(sys.modules, "calib.detect", fake)
-    monkeypatch.setattr("calib.detect", fake, raising=False)
+    monkeypatch.setitem(sys.modules, "calib.signal.detect", fake)
+    monkeypatch.setattr("calib.signal.detect", fake, raising=False)
     st = sg.static_means(bare, "accel")
     assert st.n == 24 and st.attitude is None
     assert np.allclose(st.means, sg.static_means(recording, "accel").means)
-    monkeypatch.setitem(sys.modules, "calib.detect", None)  # not installed -> clear error
-    monkeypatch.delattr("calib.detect", raising=False)
+    monkeypatch.setitem(sys.modules, "calib.signal.detect", None)  # not installed -> clear error
+    monkeypatch.delattr("calib.signal.detect", raising=False)
     with pytest.raises(sg.SegmentError, match="segment table"):
         sg.static_means(bare, "accel")
 
@@ -411,8 +411,8 @@ def test_zscores_with_sigma_from_allan_on_recordings():
 # ---------------------------------------------------------------------------------------------------------
 # slow noise (bias instability) from a long static record: closed forms and correlated segment means
 # ---------------------------------------------------------------------------------------------------------
-from calib import allan  # noqa: E402
-from calib import noisecov as nc  # noqa: E402
+from calib.signal import allan  # noqa: E402
+from calib.signal import noisecov as nc  # noqa: E402
 
 
 def _gm_record(sigma, tc, fs, n, rng):
@@ -426,7 +426,7 @@ def _gm_record(sigma, tc, fs, n, rng):
 
 
 def test_allan_deviation_of_gauss_markov_matches_closed_form_and_fit_recovers_it():
-    """AVAR of a simulated GM process against eq. (1) of calib.noisecov, inside allan.py's 95 % intervals, and
+    """AVAR of a simulated GM process against eq. (1) of calib.signal.noisecov, inside allan.py's 95 % intervals, and
     the white + GM fit recovers N, sigma, Tc."""
     rng = np.random.default_rng(31)
     fs, sigma, tc, N = 10.0, 2.0, 30.0, 1.5  # Hz, unit, s, unit s^1/2
@@ -545,8 +545,9 @@ def test_default_calibration_with_and_without_a_long_static_record(tmp_path):
     import yaml
     from pathlib import Path
 
-    from calib import calibration_study as cs
-    from calib import recording, stages
+    from calib.studies import calibration as cs
+    from calib.io import recording
+    from calib.studies import stages
 
     cfg = yaml.safe_load((Path(__file__).parents[1] / "config" / "config.yaml").read_text())
     s = dict(cfg["calibration_session"], dwell_s=20.0, rotation_rates_deg_s=[30.0], revolutions=1)

@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib import detect, importers, recording
+from calib.signal import detect
+from calib.ingest import importers
+from calib.io import recording
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

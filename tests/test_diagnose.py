@@ -1,6 +1,6 @@
-"""Mismatch diagnosis (calib.diagnose, calib.signatures).
+"""Mismatch diagnosis (calib.diagnosis.diagnose, calib.diagnosis.signatures).
 
-Every expected value is the truth injected into the simulator (the effect parameters of calib.effects), a
+Every expected value is the truth injected into the simulator (the effect parameters of calib.sim.effects), a
 closed form, or a property of the input (too short, flat); never a number captured from the diagnosis.
 Sessions are short (20 s positions, one revolution per rotation) to keep the file under a minute.
 """
@@ -11,8 +11,11 @@ import json
 import numpy as np
 import pytest
 
-from calib import diagnose as dg
-from calib import effects, recording, signatures as sg, simulate
+from calib.diagnosis import diagnose as dg
+from calib.sim import effects
+from calib.io import recording
+from calib.diagnosis import signatures as sg
+from calib.sim import simulator as simulate
 
 #: a short seed-000 session: 24 positions of 20 s, +-10/20/30 deg/s about x, y, z, one revolution each
 SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
@@ -250,7 +253,7 @@ def test_proof_stage_products(tmp_path):
     """The workflow's proof stage on the short path: a null session finds nothing, the hidden clock offset
     (10 ms, within the tested +-0.25 s) is named in every seed, and the per-seed netCDF, the power table and
     figure are written with labelled dimensions."""
-    from calib import diagnosis_study as ds_
+    from calib.studies import diagnosis as ds_
 
     base = {**SHORT, "revolutions": 1}
     out = ds_.proof_stage(tmp_path, n_seeds=3, first_seed=7, sessions=["null_a", "time_offset"], power_seeds=2,
@@ -272,7 +275,7 @@ def test_proof_stage_products(tmp_path):
 
 
 def test_unknown_settings_and_sessions_refused(tmp_path):
-    from calib import diagnosis_study as ds_
+    from calib.studies import diagnosis as ds_
 
     with pytest.raises(ValueError, match="alpah"):
         ds_.check_settings({"alpah": 0.01})
@@ -315,7 +318,8 @@ def test_injected_quadratic_found_on_top_of_the_real_xsens_data():
 def test_given_static_intervals_are_the_ones_diagnosed(tmp_path):
     """diagnose_recording on an imported recording without a segment table uses the intervals it is given
     (those of the field calibration), and too few of them give 'inconclusive' saying how many are needed."""
-    from calib import detect, importers
+    from calib.signal import detect
+    from calib.ingest import importers
 
     ds = importers.import_dataset(importers.load_settings(ROOT / "config" / "import" / "mikoff_imu0.yaml"))
     path = recording.write(ds, tmp_path / "imu0.nc")

@@ -4,8 +4,10 @@ import math
 import numpy as np
 import pytest
 
-from calib import drift, pso, simulate
-from calib.earth import DEG_PER_H
+from calib.drift import psobe as drift
+from calib.drift import pso
+from calib.sim import simulator as simulate
+from calib.core.earth import DEG_PER_H
 
 LAT = math.radians(30.58)
 TRUTH = np.array([-0.01, 0.01, 0.01])

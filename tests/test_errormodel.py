@@ -1,4 +1,4 @@
-"""Linearised stationary INS error model (calib.errormodel) against closed forms.
+"""Linearised stationary INS error model (calib.nav.errormodel) against closed forms.
 
 Closed forms used: the characteristic polynomial of the stationary error equations for a spherical Earth,
 (s^2 + W^2) [(s^2 + ws^2)^2 + 4 s^2 wF^2] s = 0 (ws^2 = g/R, wF = W sin L), its steady state (secular
@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from calib import earth, errormodel
-from calib.transforms import euler_to_dcm, rotvec_to_dcm
+from calib.core import earth
+from calib.nav import errormodel
+from calib.core.rotations import euler_to_dcm, rotvec_to_dcm
 
 LAT = math.radians(30.58)
 C = euler_to_dcm(0.02, -0.01, 0.7)
@@ -124,7 +125,7 @@ def test_longitude_error_of_model_grows_at_longitude_rate_over_240h_1e4():
 def test_phi_to_euler_error_matches_exact_small_rotation_1e5(att):
     """d(pitch, roll, yaw) of C_computed = exp(-[phi x]) C_true vs the linear map, phi ~ 1e-6 rad, within
     1e-5 relative (second order)."""
-    from calib.transforms import dcm_to_euler
+    from calib.core.rotations import dcm_to_euler
 
     Ct = euler_to_dcm(*att)
     phi = np.array([1.0, -2.0, 1.5]) * 1e-6

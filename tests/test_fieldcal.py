@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from calib import detect, fieldcal, importers, ncio, recording, transforms
+from calib.signal import detect
+from calib.fieldcal import calibrate as fieldcal
+from calib.ingest import importers
+from calib.io import netcdf as ncio
+from calib.io import recording
+from calib.core import rotations as transforms
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -21,7 +26,7 @@ needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data dir
 G = 9.81
 FS = 100.0
 
-# true parameters of the synthetic unit (counts), in the models of calib.fieldcal
+# true parameters of the synthetic unit (counts), in the models of calib.fieldcal.calibrate
 ACC_TRUE = np.array([0.004, -0.009, 0.021, 1 / 414.0, 1 / 412.0, 1 / 415.0, 33124.0, 33275.0, 32364.0])
 GYR_MIS_TRUE = np.array([-0.006, 0.001, 0.05, 0.008, -0.025, -0.002])
 GYR_GAIN_TRUE = np.array([1 / 4780.0, 1 / 4760.0, 1 / 4770.0])

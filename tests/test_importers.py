@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib import importers, recording
-from calib.importers import ImportDataError
+from calib.ingest import importers
+from calib.io import recording
+from calib.ingest.importers import ImportDataError
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

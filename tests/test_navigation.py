@@ -1,8 +1,8 @@
-"""Strapdown engine, streaming navigation of recordings and alignment (calib.strapdown/navigation/alignment).
+"""Strapdown engine, streaming navigation of recordings and alignment (calib.nav.strapdown/navigation/alignment).
 
 Truth comes from exact sensor increments (closed-form integrals of the body rate and specific force of a
 stationary or turntable-mounted IMU, Earth rate and WGS-84 normal gravity included), from the linearised
-error model integrated with a matrix exponential (calib.errormodel), and from closed forms (Schuler,
+error model integrated with a matrix exponential (calib.nav.errormodel), and from closed forms (Schuler,
 Foucault, secular longitude rate, alignment equilibrium). Tolerances are stated in each test name/docstring.
 """
 from __future__ import annotations
@@ -13,10 +13,16 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from calib import alignment, earth, errormodel, navigation, recording, sensors, strapdown
-from calib.recording import RecordingError
-from calib.strapdown import NavInit
-from calib.transforms import axis_angle, dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
+from calib.nav import alignment
+from calib.core import earth
+from calib.nav import errormodel
+from calib.nav import navigation
+from calib.io import recording
+from calib.core import triad as sensors
+from calib.nav import strapdown
+from calib.io.recording import RecordingError
+from calib.nav.strapdown import NavInit
+from calib.core.rotations import axis_angle, dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
 
 LAT = math.radians(30.58)  # seed 001 IV.A
 H = 0.0
@@ -208,7 +214,7 @@ def test_velocity_fit_recovers_foucault_split_and_schuler_frequency_0p2pct():
     """An accelerometer bias excites the Schuler loop; its Coriolis coupling splits omega_s into the pair
     sqrt(omega_s^2 + omega_F^2) +- omega_F (omega_F = W sin L). A fit of the engine's velocity errors over 48 h
     (start: a coarse grid around the strongest spectral peak) must give the half-difference within 2 % of
-    W sin L and the mean within 0.2 % of sqrt(g/R) (R = sqrt(R_M R_N), calib.earth.schuler_frequency).
+    W sin L and the mean within 0.2 % of sqrt(g/R) (R = sqrt(R_M R_N), calib.core.earth.schuler_frequency).
     """
     T, n = 0.1, 48 * 36_000
     w_b, f_b = stationary_rates()
@@ -475,7 +481,7 @@ def _write(tmp_path, name, accel, gyro, accel_units, gyro_units, kind="increment
     path = tmp_path / name
     if drop_latitude:
         del ds.attrs["latitude_deg"]
-        from calib.ncio import write_netcdf
+        from calib.io.netcdf import write_netcdf
 
         write_netcdf(ds, path)
     else:

@@ -3,11 +3,11 @@ budgets, bounds, and the ranking IDE < integration strategy < DE/rand/1 on the a
 import numpy as np
 import pytest
 
-from calib import identifiability as idf
-from calib import objectives as ob
-from calib import optimizers as opt
-from calib import segments as sg
-from calib.sensors import seed000_bounds, seed000_model
+from calib.calibration import identifiability as idf
+from calib.calibration import objectives as ob
+from calib.calibration import optimizers as opt
+from calib.signal import segments as sg
+from calib.core.triad import seed000_bounds, seed000_model
 
 
 @pytest.fixture(scope="module")

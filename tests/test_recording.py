@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from calib import recording
-from calib.ncio import write_netcdf
+from calib.io import recording
+from calib.io.netcdf import write_netcdf
 
 N = 400
 FS = 100.0

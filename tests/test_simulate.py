@@ -1,7 +1,7 @@
 """Synthetic-data stage: path plan, exact kinematics, pulse-count output, effects, long static sessions.
 
 Every expected value is a closed form of the truth (seed 000 eqs. 1-4 and 21, WGS-84 normal gravity and
-Earth rate, the effect formulas of calib.effects), never a number captured from the simulator.
+Earth rate, the effect formulas of calib.sim.effects), never a number captured from the simulator.
 """
 from __future__ import annotations
 
@@ -12,10 +12,14 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from calib import earth, effects, recording, simulate, trajectory
-from calib.recording import STANDARD_GRAVITY
-from calib.sensors import seed000_model
-from calib.transforms import dcm_to_rotvec, euler_to_dcm, rot_x, rot_y, rot_z, rotvec_to_dcm
+from calib.core import earth
+from calib.sim import effects
+from calib.io import recording
+from calib.sim import simulator as simulate
+from calib.sim import trajectory
+from calib.io.recording import STANDARD_GRAVITY
+from calib.core.triad import seed000_model
+from calib.core.rotations import dcm_to_rotvec, euler_to_dcm, rot_x, rot_y, rot_z, rotvec_to_dcm
 
 LAT, H = 30.58, 0.0
 SITE = {"latitude_deg": LAT, "height_m": H}

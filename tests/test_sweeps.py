@@ -10,8 +10,9 @@ import pytest
 import xarray as xr
 import yaml
 
-from calib import stages, sweeps
-from calib.earth import DEG_PER_H
+from calib.studies import stages
+from calib.studies import sweeps
+from calib.core.earth import DEG_PER_H
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEP_SCHEMA = ROOT / "workflow" / "schemas" / "sweep.schema.yaml"

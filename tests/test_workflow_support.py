@@ -10,8 +10,10 @@ import pytest
 import xarray as xr
 import yaml
 
-from calib import figures, strapdown, tracking
-from calib.earth import DEG_PER_H
+from calib.figures import style as figures
+from calib.nav import strapdown
+from calib.studies import tracking
+from calib.core.earth import DEG_PER_H
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -56,7 +58,8 @@ def test_multistream_navigation_independent_of_thread_count():
 
 def test_calibration_study_rerun_is_identical(tmp_path):
     """The same config gives xarray-identical netCDF and byte-identical figures, with 1 or 2 workers."""
-    from calib import calibration_study, stages
+    from calib.studies import calibration as calibration_study
+    from calib.studies import stages
 
     cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
     s = cfg["calibration_session"]

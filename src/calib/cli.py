@@ -35,7 +35,7 @@ def _config(path):
 
 
 def cmd_simulate(a):
-    from . import stages
+    from calib.studies import stages
 
     cfg = _config(a.config)
     seed = cfg["seeds"]["data"] if a.seed is None else a.seed
@@ -56,14 +56,14 @@ def cmd_simulate(a):
 
 
 def cmd_import(a):
-    from . import importers
+    from calib.ingest import importers
 
     out = importers.import_recording(importers.load_settings(a.settings), a.out)
     print(f"wrote {out}")
 
 
 def cmd_validate(a):
-    from . import recording
+    from calib.io import recording
 
     h = recording.validate(a.recording)
     print(f"{a.recording}: valid calib-recording-1, {h.n_samples} samples at {h.sample_rate_hz} Hz "
@@ -72,7 +72,7 @@ def cmd_validate(a):
 
 
 def cmd_calibrate(a):
-    from . import calibration_study
+    from calib.studies import calibration as calibration_study
 
     cfg = _config(a.config)
     cc = dict(cfg["calibration"])
@@ -83,8 +83,9 @@ def cmd_calibrate(a):
 
 
 def cmd_fieldcal(a):
-    from . import fieldcal, importers
-    from .ncio import write_netcdf
+    from calib.fieldcal import calibrate as fieldcal
+    from calib.ingest import importers
+    from calib.io.netcdf import write_netcdf
 
     settings = None
     if a.settings:
@@ -98,7 +99,7 @@ def cmd_fieldcal(a):
 
 
 def cmd_navigate(a):
-    from . import navigation_study
+    from calib.studies import navigation as navigation_study
 
     nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
     navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs")
@@ -106,7 +107,7 @@ def cmd_navigate(a):
 
 
 def cmd_diagnose(a):
-    from . import diagnose
+    from calib.diagnosis import diagnose
 
     rep = diagnose.diagnose_recording(a.recording, a.out)
     print(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))

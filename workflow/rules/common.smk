@@ -15,7 +15,7 @@ def sub(section):
 
 def import_settings():
     """Importer settings of a real-recording study (data_dir resolved against the settings file)."""
-    from calib import importers
+    from calib.ingest import importers
 
     return importers.load_settings(config["recording"]["import"])
 

@@ -1,5 +1,5 @@
 # Parameter sweeps (config/sweeps/*.yaml, listed under `sweeps:` in the study config; schema
-# workflow/schemas/sweep.schema.yaml; library calib.sweeps). Each sweep is a Paramspace over its grid: one
+# workflow/schemas/sweep.schema.yaml; library calib.studies.sweeps). Each sweep is a Paramspace over its grid: one
 # synthetic session per combination of the data parameters (seed, noise level, ...), one job per point, and a
 # gather job writing one labelled netCDF with the swept parameters as dimensions, a CSV and a summary figure.
 # Not part of `all`: run `snakemake sweeps` (or ask for results/sweeps/<name>/sweep.nc).
@@ -7,7 +7,7 @@ import json
 import os
 import re
 
-from calib import sweeps as _sweeps
+from calib.studies import sweeps as _sweeps
 
 SWEEPS = _sweeps.load_all(
     config.get("sweeps", []),

@@ -11,14 +11,14 @@ def _tracking_on():
 
 onstart:
     if _tracking_on():
-        from calib import tracking
+        from calib.studies import tracking
 
         print("tracking store:", tracking.init_store(R))
 
 
 onsuccess:
     if _tracking_on():
-        from calib import tracking
+        from calib.studies import tracking
 
         try:
             rid = tracking.collect(R, config, run_name=config.get("run_name", ""))

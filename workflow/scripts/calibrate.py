@@ -1,6 +1,7 @@
 """Rule calibrate: the seed-000 calibration study on the session."""
-from calib import calibration_study, runlog
-from calib.ncio import provenance
+from calib.studies import calibration as calibration_study
+from calib.core import progress as runlog
+from calib.io.netcdf import provenance
 
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):

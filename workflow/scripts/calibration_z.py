@@ -1,5 +1,6 @@
 """Rule calibration_z: z-scores of the default calibration over independent noise seeds."""
-from calib import calibration_study, runlog
+from calib.studies import calibration as calibration_study
+from calib.core import progress as runlog
 
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):

@@ -1,5 +1,6 @@
 """Rule diagnose: mismatch diagnosis of the study's recording (report.json, report.md, figures)."""
-from calib import diagnosis_study, runlog
+from calib.studies import diagnosis as diagnosis_study
+from calib.core import progress as runlog
 
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):

@@ -1,6 +1,7 @@
 """Rule diagnosis_proof: the concealed-effect proof over noise seeds, with detection power."""
-from calib import diagnosis_study, runlog
-from calib.ncio import provenance
+from calib.studies import diagnosis as diagnosis_study
+from calib.core import progress as runlog
+from calib.io.netcdf import provenance
 
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):

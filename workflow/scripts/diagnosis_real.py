@@ -1,5 +1,6 @@
 """Rule diagnosis_real: diagnose every shared real recording, and one with a known term injected."""
-from calib import diagnosis_study, runlog
+from calib.studies import diagnosis as diagnosis_study
+from calib.core import progress as runlog
 
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):

@@ -1,8 +1,9 @@
 """Rule drift_noise_seeds: the best estimators against the Cramer-Rao bound over many noise seeds."""
 import numba
 
-from calib import drift_study, runlog
-from calib.ncio import provenance
+from calib.studies import drift as drift_study
+from calib.core import progress as runlog
+from calib.io.netcdf import provenance
 
 numba.set_num_threads(snakemake.threads)
 p = snakemake.params

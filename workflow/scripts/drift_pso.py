@@ -1,8 +1,9 @@
 """Rule drift_pso: seed 001 Table 1, Figures 2-3, the noise limit and the baselines."""
 import numba
 
-from calib import drift_study, runlog
-from calib.ncio import provenance
+from calib.studies import drift as drift_study
+from calib.core import progress as runlog
+from calib.io.netcdf import provenance
 
 numba.set_num_threads(snakemake.threads)
 p = snakemake.params

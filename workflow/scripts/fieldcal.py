@@ -1,6 +1,7 @@
 """Rule fieldcal: calibration without a turntable record (gravity norm + gyro-integrated gravity direction)."""
-from calib import realdata, runlog
-from calib.ncio import provenance
+from calib.studies import realdata
+from calib.core import progress as runlog
+from calib.io.netcdf import provenance
 
 with runlog.to_file(snakemake.log[0]):
     o = snakemake.output

@@ -1,6 +1,7 @@
 """Rule import_recording: a real recording to calib-recording-1 (units declared in the settings)."""
-from calib import importers, runlog
-from calib.ncio import provenance
+from calib.ingest import importers
+from calib.core import progress as runlog
+from calib.io.netcdf import provenance
 
 with runlog.to_file(snakemake.log[0]):
     s = snakemake.params.settings

@@ -1,7 +1,8 @@
 """Rule real_drift: PSOBE on a real static recording, checked against the mean gyro output."""
 import numba
 
-from calib import drift_study, runlog
+from calib.studies import drift as drift_study
+from calib.core import progress as runlog
 
 numba.set_num_threads(snakemake.threads)
 with runlog.to_file(snakemake.log[0]):

@@ -1,5 +1,6 @@
 """Rule simulate_navigation_session: seed 001 §IV.A stationary data, written in chunks."""
-from calib import runlog, stages
+from calib.core import progress as runlog
+from calib.studies import stages
 
 with runlog.to_file(snakemake.log[0]):
     stages.simulate_navigation(snakemake.params.session, snakemake.params.site, snakemake.params.seed,

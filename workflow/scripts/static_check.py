@@ -1,8 +1,9 @@
 """Rule static_check: seed 000 Figure 10, static navigation with each method's calibration."""
 import numba
 
-from calib import navigation_study, runlog
-from calib.ncio import provenance
+from calib.studies import navigation as navigation_study
+from calib.core import progress as runlog
+from calib.io.netcdf import provenance
 
 numba.set_num_threads(snakemake.threads)
 p = snakemake.params

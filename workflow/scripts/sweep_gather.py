@@ -1,6 +1,7 @@
 """Rule sweep_gather: all points of a sweep into one netCDF (swept parameters as dimensions), CSV and figure."""
-from calib import runlog, sweeps
-from calib.ncio import provenance
+from calib.core import progress as runlog
+from calib.studies import sweeps
+from calib.io.netcdf import provenance
 
 p = snakemake.params
 o = snakemake.output

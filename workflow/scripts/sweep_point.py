@@ -1,8 +1,9 @@
-"""Rule sweep_point: one point of a parameter sweep (calib.sweeps.run_point)."""
+"""Rule sweep_point: one point of a parameter sweep (calib.studies.sweeps.run_point)."""
 import numba
 
-from calib import runlog, sweeps
-from calib.ncio import provenance
+from calib.core import progress as runlog
+from calib.studies import sweeps
+from calib.io.netcdf import provenance
 
 numba.set_num_threads(snakemake.threads)
 p = snakemake.params

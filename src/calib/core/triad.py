@@ -1,0 +1,119 @@
+"""Sensor error model of a triad (seed 000 eqs. 1-4) and its parameter vector.
+
+    N = K E x + b                                            (seed 000 eqs. 1 and 3)
+
+* ``x`` the true input in the body frame (specific force or angular rate), in the triad's *input unit*;
+* ``K = diag(Kx, Ky, Kz)`` scale factors [output unit per input unit];
+* ``E`` installation-error matrix with unit diagonal (seed 000 eq. 2/4): rows are the sensitive axes
+  of the x, y, z sensors expressed in the body frame, to first order;
+* ``b`` biases [output unit].
+
+Parameter vector order (seed 000 eqs. 8 and 19)::
+
+    [Kx, Ky, Kz, Exy, Exz, Eyx, Eyz, Ezx, Ezy, bx, by, bz]
+
+Units of the synthetic unit (seed 000 does not state them; this is the project's documented reading):
+
+* accelerometers: input in standard g (9.80665 m/s^2), output in ``count s-1`` (the pulse rate of a
+  quantised velocity-increment channel), so ``Ka ~ 13942 count s-1 per g`` and ``ba ~ -207 count s-1``
+  (-0.0148 g);
+* gyros: input in deg/h, output in ``count s-1``, so ``Kg ~ 7922 count s-1 per deg/h`` and a bias of
+  -208 count s-1 is -0.026 deg/h, a plausible navigation-grade FOG.
+
+With these units the bounds of seed 000 Tables 1 and 3 contain the true values.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calib.io.recording import STANDARD_GRAVITY
+
+PARAM_NAMES = ("Kx", "Ky", "Kz", "Exy", "Exz", "Eyx", "Eyz", "Ezx", "Ezy", "bx", "by", "bz")
+#: positions of the off-diagonal installation errors inside E, in parameter order
+OFFDIAG = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
+
+#: input units of the two triads of the synthetic unit, with the factor to SI
+INPUT_UNITS = {"accel": ("g", STANDARD_GRAVITY), "gyro": ("deg h-1", math.pi / 180.0 / 3600.0)}
+
+
+@dataclass
+class TriadModel:
+    """Linear triad model N = K E x + b. ``input_unit``/``output_unit`` are strings of the recording format."""
+
+    K: np.ndarray
+    E: np.ndarray
+    b: np.ndarray
+    input_unit: str = "g"
+    output_unit: str = "count s-1"
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def KE(self) -> np.ndarray:
+        return np.diag(self.K) @ self.E
+
+    def forward(self, x):
+        """Output N for inputs ``x`` (..., 3) in the input unit (base model only)."""
+        return np.asarray(x) @ self.KE.T + self.b
+
+    def inverse(self, n):
+        """Input estimate x = (K E)^-1 (N - b) for outputs ``n`` (..., 3)."""
+        return np.linalg.solve(self.KE, (np.asarray(n) - self.b).T).T
+
+    def to_vector(self) -> np.ndarray:
+        return np.concatenate([self.K, [self.E[i, j] for i, j in OFFDIAG], self.b])
+
+    @classmethod
+    def from_vector(cls, theta, input_unit="g", output_unit="count s-1") -> "TriadModel":
+        theta = np.asarray(theta, dtype=float)
+        E = np.eye(3)
+        for k, (i, j) in enumerate(OFFDIAG):
+            E[i, j] = theta[3 + k]
+        return cls(theta[0:3].copy(), E, theta[9:12].copy(), input_unit, output_unit)
+
+
+def ke_from_vector(theta):
+    """K E (3x3) from a parameter vector (vectorised over leading dims: theta (..., 12) -> (..., 3, 3))."""
+    theta = np.asarray(theta, dtype=float)
+    E = np.broadcast_to(np.eye(3), theta.shape[:-1] + (3, 3)).copy()
+    for k, (i, j) in enumerate(OFFDIAG):
+        E[..., i, j] = theta[..., 3 + k]
+    return theta[..., 0:3, None] * E
+
+
+#: "Separate calibration results" of seed 000 Table 1 (accelerometers) and Table 3 (gyros):
+#: scale factors, biases, and the two installation-error columns (row i holds E_i,j for j != i in order).
+SEED000_ACCEL = {
+    "K": [13942.35422951, 13345.72485877, 13062.44709817],
+    "b": [-206.59251066, 87.24553607, 333.71033323],
+    "E": [[0.00336420, 0.00191168], [0.00271530, -0.00204019], [-0.00739421, -0.00044851]],
+    "lower": {"K": 13000.0, "b": -400.0, "E": -0.01},
+    "upper": {"K": 14000.0, "b": 400.0, "E": 0.01},
+}
+SEED000_GYRO = {
+    "K": [7921.74760617, 7911.54386049, 7924.57007346],
+    "b": [-208.33680363, -33.24299533, -54.56475774],
+    "E": [[-0.00489132, 0.00096090], [0.00058152, 0.00018519], [0.00449350, 0.00137873]],
+    "lower": {"K": 7800.0, "b": -500.0, "E": -0.01},
+    "upper": {"K": 8000.0, "b": 100.0, "E": 0.01},
+}
+
+
+def seed000_model(sensor: str) -> TriadModel:
+    """The seed-000 'separate calibration results' as a :class:`TriadModel` (the default synthetic truth)."""
+    t = SEED000_ACCEL if sensor == "accel" else SEED000_GYRO
+    E = np.eye(3)
+    flat = [v for row in t["E"] for v in row]
+    for k, (i, j) in enumerate(OFFDIAG):
+        E[i, j] = flat[k]
+    return TriadModel(np.array(t["K"]), E, np.array(t["b"]), INPUT_UNITS[sensor][0], "count s-1")
+
+
+def seed000_bounds(sensor: str):
+    """Lower and upper bounds of seed 000 Table 1 (accel) or Table 3 (gyro) in parameter order."""
+    t = SEED000_ACCEL if sensor == "accel" else SEED000_GYRO
+    lo = [t["lower"]["K"]] * 3 + [t["lower"]["E"]] * 6 + [t["lower"]["b"]] * 3
+    hi = [t["upper"]["K"]] * 3 + [t["upper"]["E"]] * 6 + [t["upper"]["b"]] * 3
+    return np.array(lo), np.array(hi)

@@ -1,0 +1,111 @@
+"""The one place where ``calib`` writes netCDF.
+
+Every netCDF file the project writes goes through :func:`write_netcdf` (small products) or
+:class:`AtomicNetCDF` (long recordings written chunk by chunk). Both use the ``netcdf4`` engine and write
+to a temporary name in the target directory, renaming only when the file is complete, so a failure never
+leaves a half-written file under the final name.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+import netCDF4
+import xarray as xr
+
+ENGINE = "netcdf4"
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _tmp_name(path: Path) -> Path:
+    """A unique temporary file beside ``path``, with the permissions a plain ``open`` would give."""
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
+    os.close(fd)
+    os.chmod(tmp, 0o666 & ~_umask())
+    return Path(tmp)
+
+
+def git_commit() -> str:
+    """Commit hash of the source tree this package runs from, or 'unknown'."""
+    here = Path(__file__).resolve().parent
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
+        if out.returncode == 0:
+            return out.stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return "unknown"
+
+
+def config_hash(cfg) -> str:
+    """SHA-256 (first 16 hex digits) of a JSON-serialisable configuration, key order independent."""
+    blob = json.dumps(cfg, sort_keys=True, default=str).encode()
+    return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def provenance(rule: str = "", cfg=None, seed=None) -> dict:
+    """Provenance attributes carried by every scientific netCDF file."""
+    from calib import __version__
+
+    attrs = {"calib_version": __version__, "git_commit": git_commit(), "made_by_rule": rule or "cli"}
+    if cfg is not None:
+        attrs["config_hash"] = config_hash(cfg)
+    if seed is not None:
+        attrs["seed"] = int(seed)
+    return attrs
+
+
+def write_netcdf(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
+    """Write ``ds`` to ``path`` atomically (temporary name, then rename) with the fixed engine."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ds = ds.copy()
+    if prov:
+        ds.attrs.update({k: v for k, v in prov.items() if v is not None})
+    tmp = _tmp_name(path)
+    try:
+        ds.to_netcdf(tmp, engine=ENGINE)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    return path
+
+
+class AtomicNetCDF:
+    """Context manager giving a ``netCDF4.Dataset`` open for writing under a temporary name.
+
+    On a clean exit the file is closed and renamed to ``path``; on an exception it is deleted.
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = _tmp_name(self.path)
+        self.nc = None
+
+    def __enter__(self) -> netCDF4.Dataset:
+        self.nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
+        return self.nc
+
+    def __exit__(self, exc_type, exc, tb):
+        try:
+            self.nc.close()
+        finally:
+            if exc_type is None:
+                os.replace(self.tmp, self.path)
+            else:
+                with contextlib.suppress(FileNotFoundError):
+                    self.tmp.unlink()
+        return False

@@ -1,0 +1,400 @@
+"""The recording format ``calib-recording-1``: one netCDF file per session, read and written here only.
+
+Layout (see README, "Recording format")
+---------------------------------------
+dims ``time`` and ``axis`` (= x, y, z); optional ``segment``, ``row``, ``col``.
+
+* ``time(time)`` seconds from the start, **or** (long files) no ``time`` variable and the global
+  attributes ``t0_s`` and ``sample_rate_hz`` alone.
+* ``accel(time, axis)``, ``gyro(time, axis)``: raw output per sample. Attributes ``sample_kind``
+  (``rate`` | ``increment``) and ``units``.
+* optional ``temperature(time)`` [degC], ``segment_index(time)`` (int, -1 for transitions),
+  ``table_angle(time)`` [deg about the current rotation axis].
+* optional segment table on ``segment``: ``segment_kind`` (static | rotation), ``segment_label``,
+  ``rotation_axis(segment, axis)`` (unit vector, body frame), ``rotation_rate(segment)`` [deg/s, right-hand
+  rule], ``nominal_attitude(segment, row, col)`` (C_b^n, body to ENU).
+* global attributes: ``latitude_deg`` (required), ``height_m``, ``gravity_m_s2``, ``sample_rate_hz``,
+  ``source`` (synthetic | recorded), ``sensor``, ``conventions = "calib-recording-1"``.
+
+Body frame: whatever the sensor's case marks; for the synthetic unit, seed 000's right-front-up.
+Navigation frame: ENU. Rates are signed by the right-hand rule.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import netCDF4
+import numpy as np
+import xarray as xr
+
+from calib.core import earth
+from calib.io.netcdf import AtomicNetCDF, write_netcdf
+
+CONVENTIONS = "calib-recording-1"
+AXES = ("x", "y", "z")
+
+#: allowed units per (sensor, sample_kind)
+UNITS = {
+    ("accel", "rate"): ("count", "count s-1", "m s-2", "g"),
+    ("accel", "increment"): ("count", "m s-1"),
+    ("gyro", "rate"): ("count", "count s-1", "rad s-1", "deg s-1", "deg h-1"),
+    ("gyro", "increment"): ("count", "rad", "deg"),
+}
+#: factor to SI (m/s^2, m/s, rad/s, rad) for physical units; counts have none
+TO_SI = {
+    "m s-2": 1.0,
+    "g": None,  # depends on the standard gravity used by the sensor maker: 9.80665 m/s^2
+    "m s-1": 1.0,
+    "rad s-1": 1.0,
+    "deg s-1": math.pi / 180.0,
+    "deg h-1": math.pi / 180.0 / 3600.0,
+    "rad": 1.0,
+    "deg": math.pi / 180.0,
+}
+STANDARD_GRAVITY = 9.80665  # m/s^2, the conventional 'g' of sensor datasheets (CGPM 1901)
+LONG_FILE_SAMPLES = 2_000_000  # above this, writers omit the explicit time coordinate
+
+
+class RecordingError(ValueError):
+    """A recording that breaks ``calib-recording-1``; the message names the file, the variable and the fix."""
+
+    def __init__(self, path, variable, problem, fix=""):
+        self.path, self.variable, self.problem = str(path), variable, problem
+        msg = f"{path}: variable '{variable}': {problem}"
+        if fix:
+            msg += f" -- fix: {fix}"
+        super().__init__(msg)
+
+
+@dataclass(frozen=True)
+class Header:
+    """What a reader needs to know about a recording without loading its samples."""
+
+    path: str
+    n_samples: int
+    sample_rate_hz: float
+    t0_s: float
+    has_time: bool
+    latitude_deg: float
+    height_m: float
+    gravity_m_s2: float
+    accel_kind: str
+    accel_units: str
+    gyro_kind: str
+    gyro_units: str
+    attrs: dict
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.sample_rate_hz
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_samples / self.sample_rate_hz
+
+
+def unit_factor(units: str) -> float | None:
+    """Multiplier taking a physical unit to SI; ``g`` uses standard gravity; ``None`` for counts."""
+    if units == "g":
+        return STANDARD_GRAVITY
+    return TO_SI.get(units)
+
+
+def _attr(nc, name, default=None):
+    return nc.getncattr(name) if name in nc.ncattrs() else default
+
+
+def read_header(path) -> Header:
+    """Open ``path`` and check everything that can be checked without reading the samples.
+
+    Raises :class:`RecordingError` naming the file, the variable and what is wrong.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(path, "-", "file not found")
+    try:
+        nc = netCDF4.Dataset(path, "r")
+    except OSError as exc:
+        raise RecordingError(path, "-", f"not a readable netCDF file ({exc}); truncated or not netCDF",
+                             "re-export or re-import the recording") from exc
+    try:
+        conv = _attr(nc, "conventions")
+        if conv != CONVENTIONS:
+            raise RecordingError(path, "conventions", f"global attribute is {conv!r}, expected {CONVENTIONS!r}")
+        for dim in ("time", "axis"):
+            if dim not in nc.dimensions:
+                raise RecordingError(path, dim, "dimension missing")
+        if len(nc.dimensions["axis"]) != 3:
+            raise RecordingError(path, "axis", f"length {len(nc.dimensions['axis'])}, expected 3 (x, y, z)")
+        n = len(nc.dimensions["time"])
+        if n < 2:
+            raise RecordingError(path, "time", f"only {n} samples", "record at least two samples")
+        lat = _attr(nc, "latitude_deg")
+        if lat is None:
+            raise RecordingError(path, "latitude_deg", "required global attribute missing",
+                                 "set the site latitude (degrees) in the import settings")
+        lat = float(lat)
+        if not (-90.0 <= lat <= 90.0) or not math.isfinite(lat):
+            raise RecordingError(path, "latitude_deg", f"value {lat} outside [-90, 90] degrees")
+        height = float(_attr(nc, "height_m", 0.0))
+        kinds = {}
+        for var in ("accel", "gyro"):
+            if var not in nc.variables:
+                raise RecordingError(path, var, "variable missing")
+            v = nc.variables[var]
+            if v.dimensions != ("time", "axis"):
+                raise RecordingError(path, var, f"dimensions {v.dimensions}, expected ('time', 'axis')")
+            kind = _attr(v, "sample_kind")
+            if kind not in ("rate", "increment"):
+                raise RecordingError(path, var, f"attribute sample_kind={kind!r}, expected 'rate' or 'increment'")
+            units = _attr(v, "units")
+            allowed = UNITS[(var, kind)]
+            if units not in allowed:
+                raise RecordingError(path, var, f"units={units!r} not allowed for sample_kind={kind!r}",
+                                     f"declare one of {', '.join(allowed)}")
+            kinds[var] = (kind, units)
+        has_time = "time" in nc.variables
+        if has_time:
+            t = np.asarray(nc.variables["time"][:], dtype=float)
+            if t.shape != (n,):
+                raise RecordingError(path, "time", f"shape {t.shape}, expected ({n},)")
+            if not np.all(np.isfinite(t)):
+                raise RecordingError(path, "time", "contains NaN or Inf")
+            d = np.diff(t)
+            if np.any(d <= 0):
+                i = int(np.argmax(d <= 0))
+                raise RecordingError(path, "time", f"not strictly increasing at sample {i + 1} "
+                                     f"(t={t[i]:.6f} s then {t[i + 1]:.6f} s)")
+            fs = float(_attr(nc, "sample_rate_hz", 1.0 / np.median(d)))
+            t0 = float(t[0])
+        else:
+            fs = _attr(nc, "sample_rate_hz")
+            t0 = _attr(nc, "t0_s")
+            if fs is None or t0 is None:
+                raise RecordingError(path, "time", "no time variable and no t0_s/sample_rate_hz attributes",
+                                     "add a time coordinate or both global attributes")
+            fs, t0 = float(fs), float(t0)
+        if not (fs > 0 and math.isfinite(fs)):
+            raise RecordingError(path, "sample_rate_hz", f"value {fs} is not a positive rate")
+        g = _attr(nc, "gravity_m_s2")
+        g = float(g) if g is not None else float(earth.normal_gravity(math.radians(lat), height))
+        attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
+        return Header(str(path), n, fs, t0, has_time, lat, height, g,
+                      kinds["accel"][0], kinds["accel"][1], kinds["gyro"][0], kinds["gyro"][1], attrs)
+    finally:
+        nc.close()
+
+
+def _check_finite(path, name, arr, offset=0):
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i = int(np.argmax(bad.reshape(len(arr), -1).any(axis=1)))
+        raise RecordingError(path, name, f"NaN or Inf at sample {offset + i}",
+                             "remove or interpolate the bad samples before import")
+
+
+def validate(path) -> Header:
+    """Full check of a recording: header, segment table and every sample (read in chunks)."""
+    h = read_header(path)
+    with xr.open_dataset(path, engine="netcdf4") as ds:
+        if "segment_index" in ds:
+            si = ds["segment_index"]
+            if si.dims != ("time",):
+                raise RecordingError(path, "segment_index", f"dimensions {si.dims}, expected ('time',)")
+            nseg = ds.sizes.get("segment", 0)
+            vals = np.asarray(si.values)
+            if vals.size and (vals.max() >= nseg or vals.min() < -1):
+                raise RecordingError(path, "segment_index", f"values must lie in -1..{nseg - 1}")
+        if "segment" in ds.dims:
+            for name in ("segment_kind",):
+                if name not in ds:
+                    raise RecordingError(path, name, "segment table present but variable missing")
+            kinds = [str(k) for k in ds["segment_kind"].values]
+            for i, k in enumerate(kinds):
+                if k not in ("static", "rotation"):
+                    raise RecordingError(path, "segment_kind", f"segment {i} has kind {k!r}")
+            if "rotation_rate" in ds:
+                rr = ds["rotation_rate"].values
+                for i, k in enumerate(kinds):
+                    if k == "rotation" and not (np.isfinite(rr[i]) and rr[i] != 0.0):
+                        raise RecordingError(path, "rotation_rate", f"rotation segment {i} has no rate ({rr[i]})",
+                                             "give the table rate in deg/s, signed by the right-hand rule")
+            elif "rotation" in kinds:
+                raise RecordingError(path, "rotation_rate", "rotation segments present but no rates")
+        if "temperature" in ds:
+            _check_finite(path, "temperature", ds["temperature"].values)
+    for start, acc, gyr in iter_raw_chunks(path, h):
+        _check_finite(path, "accel", acc, start)
+        _check_finite(path, "gyro", gyr, start)
+    return h
+
+
+def iter_raw_chunks(path, header: Header | None = None, chunk: int = 1_000_000, start: int = 0, stop=None):
+    """Yield ``(first_sample_index, accel, gyro)`` raw float64 arrays of at most ``chunk`` samples."""
+    h = header or read_header(path)
+    stop = h.n_samples if stop is None else min(stop, h.n_samples)
+    nc = netCDF4.Dataset(path, "r")
+    try:
+        nc.set_auto_mask(False)
+        va, vg = nc.variables["accel"], nc.variables["gyro"]
+        for i0 in range(start, stop, chunk):
+            i1 = min(i0 + chunk, stop)
+            yield i0, np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
+    finally:
+        nc.close()
+
+
+def load(path, validate_all: bool = True) -> xr.Dataset:
+    """Load a (small) recording fully into memory as an ``xarray.Dataset`` after validating it.
+
+    Long files without a time coordinate get one computed from ``t0_s`` and ``sample_rate_hz``.
+    """
+    h = validate(path) if validate_all else read_header(path)
+    with xr.open_dataset(path, engine="netcdf4") as ds:
+        ds = ds.load()
+    if "time" not in ds.coords:
+        ds = ds.assign_coords(time=h.t0_s + np.arange(h.n_samples) / h.sample_rate_hz)
+    ds.attrs["_path"] = str(path)
+    return ds
+
+
+def to_si(values, units: str, kind: str, dt: float, sensor: str):
+    """Physical-unit samples to SI increments (m/s or rad) per sample for navigation.
+
+    Raises ``ValueError`` for counts: those need a calibration first.
+    """
+    f = unit_factor(units)
+    if f is None:
+        raise ValueError(f"{sensor}: units 'count' need a calibration to become physical")
+    v = np.asarray(values, dtype=np.float64) * f
+    return v if kind == "increment" else v * dt
+
+
+def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro_units,
+                 accel_kind="rate", gyro_kind="rate", time=None, t0_s=0.0, height_m=0.0, gravity_m_s2=None,
+                 source="synthetic", sensor="", temperature=None, segment_index=None, segments=None,
+                 table_angle=None, extra_attrs=None) -> xr.Dataset:
+    """Build an in-memory ``calib-recording-1`` dataset.
+
+    ``segments`` is a dict of per-segment arrays: ``segment_kind``, ``segment_label``, ``rotation_axis``
+    (n, 3), ``rotation_rate`` (n,) deg/s, ``nominal_attitude`` (n, 3, 3).
+    """
+    accel = np.asarray(accel)
+    gyro = np.asarray(gyro)
+    n = accel.shape[0]
+    data = {
+        "accel": (("time", "axis"), accel, {"sample_kind": accel_kind, "units": accel_units,
+                                            "long_name": "accelerometer triad output, body frame"}),
+        "gyro": (("time", "axis"), gyro, {"sample_kind": gyro_kind, "units": gyro_units,
+                                          "long_name": "gyroscope triad output, body frame"}),
+    }
+    coords = {"axis": list(AXES)}
+    if time is None and n <= LONG_FILE_SAMPLES:
+        time = t0_s + np.arange(n) / sample_rate_hz
+    if time is not None:
+        coords["time"] = ("time", np.asarray(time, dtype=np.float64), {"units": "s", "long_name": "time from start"})
+    if temperature is not None:
+        data["temperature"] = (("time",), np.asarray(temperature, dtype=np.float64), {"units": "degC"})
+    if segment_index is not None:
+        data["segment_index"] = (("time",), np.asarray(segment_index, dtype=np.int32),
+                                 {"long_name": "segment of each sample, -1 for transitions"})
+    if table_angle is not None:
+        data["table_angle"] = (("time",), np.asarray(table_angle, dtype=np.float64),
+                               {"units": "deg", "long_name": "table angle about the current rotation axis"})
+    if segments is not None:
+        nseg = len(segments["segment_kind"])
+        coords["segment"] = np.arange(nseg)
+        data["segment_kind"] = (("segment",), np.asarray(segments["segment_kind"], dtype=str))
+        data["segment_label"] = (("segment",), np.asarray(segments.get("segment_label", [""] * nseg), dtype=str))
+        if "rotation_axis" in segments:
+            data["rotation_axis"] = (("segment", "axis"), np.asarray(segments["rotation_axis"], dtype=float),
+                                     {"long_name": "rotation axis, unit vector in the body frame"})
+        if "rotation_rate" in segments:
+            data["rotation_rate"] = (("segment",), np.asarray(segments["rotation_rate"], dtype=float),
+                                     {"units": "deg s-1", "long_name": "table rate, right-hand rule"})
+        if "nominal_attitude" in segments:
+            data["nominal_attitude"] = (("segment", "row", "col"), np.asarray(segments["nominal_attitude"], float),
+                                        {"long_name": "C_b^n body-to-ENU DCM at the segment start"})
+    attrs = {"conventions": CONVENTIONS, "latitude_deg": float(latitude_deg), "height_m": float(height_m),
+             "sample_rate_hz": float(sample_rate_hz), "source": source, "sensor": sensor}
+    if time is None:
+        attrs["t0_s"] = float(t0_s)
+    if gravity_m_s2 is not None:
+        attrs["gravity_m_s2"] = float(gravity_m_s2)
+    if extra_attrs:
+        attrs.update(extra_attrs)
+    return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def write(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
+    """Write an in-memory recording atomically, then validate what was written."""
+    out = write_netcdf(ds, path, prov)
+    validate(out)
+    return out
+
+
+class LongRecordingWriter:
+    """Write a long recording chunk by chunk (no explicit time coordinate; ``t0_s`` + ``sample_rate_hz``).
+
+    Usage::
+
+        with LongRecordingWriter(path, n, fs, latitude_deg=30.58, ...) as w:
+            w.append(accel_chunk, gyro_chunk)
+
+    Memory stays flat with duration; the file appears under its final name only when complete.
+    """
+
+    def __init__(self, path, n_samples, sample_rate_hz, *, latitude_deg, accel_units, gyro_units,
+                 accel_kind="increment", gyro_kind="increment", dtype="f8", height_m=0.0, t0_s=0.0,
+                 source="synthetic", sensor="", extra_attrs=None, chunk_samples=262144, temperature=False):
+        self._atomic = AtomicNetCDF(path)
+        self.n = int(n_samples)
+        self.pos = 0
+        self.vt = None  # optional temperature(time) [degC] channel (``temperature=True``)
+        self._temperature = bool(temperature)
+        self._args = dict(fs=float(sample_rate_hz), lat=float(latitude_deg), au=accel_units, gu=gyro_units,
+                          ak=accel_kind, gk=gyro_kind, dtype=dtype, h=float(height_m), t0=float(t0_s),
+                          source=source, sensor=sensor, extra=extra_attrs or {}, chunk=int(chunk_samples))
+
+    def __enter__(self):
+        a = self._args
+        nc = self.nc = self._atomic.__enter__()
+        nc.createDimension("time", self.n)
+        nc.createDimension("axis", 3)
+        ax = nc.createVariable("axis", str, ("axis",))
+        for i, s in enumerate(AXES):
+            ax[i] = s
+        chunks = (min(a["chunk"], self.n), 3)
+        self.va = nc.createVariable("accel", a["dtype"], ("time", "axis"), chunksizes=chunks)
+        self.vg = nc.createVariable("gyro", a["dtype"], ("time", "axis"), chunksizes=chunks)
+        self.va.setncatts({"sample_kind": a["ak"], "units": a["au"], "long_name": "accelerometer triad output"})
+        self.vg.setncatts({"sample_kind": a["gk"], "units": a["gu"], "long_name": "gyroscope triad output"})
+        if self._temperature:
+            self.vt = nc.createVariable("temperature", "f4", ("time",), chunksizes=(chunks[0],))
+            self.vt.setncatts({"units": "degC", "long_name": "unit temperature"})
+        attrs = {"conventions": CONVENTIONS, "latitude_deg": a["lat"], "height_m": a["h"], "sample_rate_hz": a["fs"],
+                 "t0_s": a["t0"], "source": a["source"], "sensor": a["sensor"]}
+        attrs.update(a["extra"])
+        nc.setncatts(attrs)
+        return self
+
+    def append(self, accel, gyro, temperature=None):
+        k = len(accel)
+        if self.pos + k > self.n:
+            raise ValueError(f"writer overflow: {self.pos + k} > {self.n} samples")
+        if (temperature is None) != (self.vt is None):
+            raise ValueError("temperature samples must be given exactly when the writer was opened with temperature=True")
+        self.va[self.pos:self.pos + k] = accel
+        self.vg[self.pos:self.pos + k] = gyro
+        if self.vt is not None:
+            self.vt[self.pos:self.pos + k] = temperature
+        self.pos += k
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None and self.pos != self.n:
+            exc_type = ValueError
+            self._atomic.__exit__(exc_type, None, None)
+            raise ValueError(f"writer closed after {self.pos} of {self.n} samples")
+        return self._atomic.__exit__(exc_type, exc, tb)

@@ -1,0 +1,248 @@
+"""Diagnosis stage of the workflow: the study's session, the concealed-effect proof, the real recordings.
+
+Called by the rules of ``workflow/rules/diagnosis.smk`` (and ``real.smk`` for a real-recording study). The
+science lives in :mod:`calib.diagnosis.diagnose`; this module only runs it and writes the stage's products:
+
+* ``diagnose_session``: ``report.json``, ``report.md``, residual and Allan figures of one recording, and a
+  ``diagnosis.metrics.json`` (verdict, chi-square before/after, number of findings) for tracking.
+* ``proof_stage``: :func:`calib.diagnosis.diagnose.run_proof` over ``n_seeds`` noise seeds per session, then a labelled
+  netCDF of every seed's outcome (dims ``session``, ``seed``), the detection-power table and figure
+  (``power.csv``, ``power.png``: detection rate against the injected magnitude, the 80 % line), the proof
+  table (``proof.csv``, ``proof.md``) and metrics. Wall times go to ``timings.json`` only.
+* ``real_stage``: :func:`calib.diagnosis.diagnose.run_real` on every shared recording plus the injection test.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from calib.diagnosis import diagnose as dg
+from calib.figures import style as figures
+from calib.diagnosis import signatures as sg
+from calib.io.netcdf import write_netcdf
+
+#: the verdicts, in the order used for integer codes in the netCDF
+VERDICTS = ("adequate", "missing_physics", "inconclusive")
+
+
+def check_settings(settings: dict | None, where: str = "diagnosis.settings") -> dict:
+    """Overrides of :data:`calib.diagnosis.diagnose.DEFAULT_SETTINGS`; an unknown name is refused, naming it."""
+    settings = dict(settings or {})
+    unknown = sorted(set(settings) - set(dg.DEFAULT_SETTINGS))
+    if unknown:
+        raise ValueError(f"{where}: unknown setting(s) {unknown}; known: {sorted(dg.DEFAULT_SETTINGS)}")
+    return settings
+
+
+def diagnose_session(recording_path, out_dir, settings=None, metrics_path=None, fieldcal_path=None,
+                     log=print) -> dict:
+    """Diagnose one recording (synthetic or imported) into ``out_dir``; returns the report. ``fieldcal_path``:
+    the field calibration of an imported recording without a segment table (``static_intervals`` of
+    ``calib-fieldcal-1``): the diagnosis then tests the same static intervals the calibration used."""
+    st = check_settings(settings)
+    log(f"diagnosing {recording_path}")
+    intervals = None
+    if fieldcal_path:
+        with xr.open_dataset(fieldcal_path) as fc:
+            intervals = np.asarray(fc["static_intervals"].values)
+        log(f"static intervals: the {len(intervals)} of the field calibration ({fieldcal_path})")
+    rep = dg.diagnose_recording(recording_path, out_dir, st, intervals=intervals,
+                                intervals_source=str(fieldcal_path or ""))
+    gof = rep.get("goodness_of_fit", {})
+    log(f"verdict: {rep['verdict']} -- {rep.get('verdict_reason', '')}")
+    for f in rep.get("found", []):
+        log(f"  found {f['key']} (BIC gain {f['delta_bic']:.1f}); aliases: "
+            + (", ".join(a["key"] for a in f["aliases"]) or "none"))
+    metrics = {"verdict": rep["verdict"], "n_found": len(rep.get("found", [])),
+               "found": [f["key"] for f in rep.get("found", [])],
+               "chi2_before": gof.get("before", {}).get("chi2"), "chi2_after": gof.get("after", {}).get("chi2"),
+               "p_before": gof.get("before", {}).get("p"), "p_after": gof.get("after", {}).get("p")}
+    if metrics_path:
+        dg.write_json_atomic(metrics, metrics_path)
+    return rep
+
+
+# =====================================================================================================
+# proof
+# =====================================================================================================
+def proof_dataset(out: dict) -> xr.Dataset:
+    """Every seed's outcome of the proof as a labelled dataset (dims ``session``, ``seed``; ``power_point``)."""
+    results = [r for r in out["_results"] if r["scale"] == 1.0]
+    sessions = [r["name"] for r in results]
+    seeds = sorted({x["seed"] for r in results for x in r["rows"]})
+    shape = (len(sessions), len(seeds))
+    var = {k: np.full(shape, np.nan) for k in ("chi2_before", "chi2_after", "chi2_after_p", "coverage")}
+    ints = {k: np.full(shape, -1, dtype=np.int8) for k in ("correct", "named_exactly", "false_discovery",
+                                                             "n_found", "verdict")}
+    for i, r in enumerate(results):
+        for x in r["rows"]:
+            j = seeds.index(x["seed"])
+            for k in ("chi2_before", "chi2_after", "chi2_after_p"):
+                var[k][i, j] = np.nan if x.get(k) is None else float(x[k])
+            cov = x.get("coverage") or []
+            var["coverage"][i, j] = float(np.mean([c["covered"] for c in cov])) if cov else np.nan
+            ints["correct"][i, j] = int(bool(x["correct"]))
+            ints["named_exactly"][i, j] = int(bool(x.get("named_exactly", False)))
+            ints["false_discovery"][i, j] = int(bool(x["false_discoveries"]))
+            ints["n_found"][i, j] = len(x["found"])
+            ints["verdict"][i, j] = VERDICTS.index(x["verdict"]) if x.get("verdict") in VERDICTS else -1
+    kinds = [dg.PROOF_SESSIONS[s][0] for s in sessions]
+    ds = xr.Dataset(
+        {
+            "chi2_before": (("session", "seed"), var["chi2_before"],
+                            {"long_name": "chi-square of the base model", "units": "1"}),
+            "chi2_after": (("session", "seed"), var["chi2_after"],
+                           {"long_name": "chi-square with the selected terms", "units": "1"}),
+            "chi2_after_p": (("session", "seed"), var["chi2_after_p"],
+                             {"long_name": "p-value of chi2_after", "units": "1"}),
+            "coverage": (("session", "seed"), var["coverage"],
+                         {"long_name": "fraction of the named effect's parameters whose truth lies inside the "
+                                       "reported 95 % interval", "units": "1"}),
+            "correct": (("session", "seed"), ints["correct"],
+                        {"long_name": "diagnosis correct (null: nothing found; single: the injected effect "
+                                      "named, alone or in its alias group; confounded: never one effect)",
+                         "flag_values": "0 1"}),
+            "named_exactly": (("session", "seed"), ints["named_exactly"], {"flag_values": "0 1"}),
+            "false_discovery": (("session", "seed"), ints["false_discovery"],
+                                {"long_name": "a finding whose alias group holds no injected effect",
+                                 "flag_values": "0 1"}),
+            "n_found": (("session", "seed"), ints["n_found"], {"long_name": "number of terms found"}),
+            "verdict": (("session", "seed"), ints["verdict"],
+                        {"flag_values": "0 1 2", "flag_meanings": " ".join(VERDICTS)}),
+        },
+        coords={"session": sessions, "seed": np.asarray(seeds, dtype=np.int64),
+                "kind": ("session", kinds)},
+        attrs={"title": "calib mismatch diagnosis: concealed-effect proof, one row per noise seed",
+               "method": out["method"]},
+    )
+    pts = [(nm, q) for nm, p in (out.get("power") or {}).items() for q in p["points"]]
+    if pts:
+        ds = ds.assign_coords(power_point=np.arange(len(pts)))
+        ds["power_session"] = ("power_point", [nm for nm, _ in pts])
+        ds["power_scale"] = ("power_point", np.array([q["scale"] for _, q in pts]),
+                             {"long_name": "injected magnitude as a fraction of the proof magnitude"})
+        ds["power_detected"] = ("power_point", np.array([q["detected"] for _, q in pts], dtype=np.int32))
+        ds["power_n"] = ("power_point", np.array([q["n"] for _, q in pts], dtype=np.int32))
+    return ds
+
+
+def _magnitude_text(eff: dict | None) -> str:
+    if not eff:
+        return ""
+    parts = []
+    for params in eff.values():
+        for k, v in params.items():
+            if sg.is_shape_parameter(k):
+                continue
+            a = np.asarray(v, float)
+            if a.size == 0 or not np.any(a):
+                continue
+            txt = np.array2string(np.round(a, 4), separator=" ", max_line_width=10**6) if a.ndim else f"{float(a):.4g}"
+            parts.append(f"{k}={' '.join(txt.split())}")   # one line: a CSV field holds no newline
+    return "; ".join(parts)
+
+
+def power_csv(power: dict) -> str:
+    """One row per effect: the smallest scale (fraction of the proof magnitude) detected in >= 80 % of seeds,
+    that magnitude, and the measured points."""
+    lines = ["effect,smallest_scale_80pct,smallest_magnitude_80pct,points(scale:detected/n)"]
+    for nm, p in power.items():
+        s80 = p["smallest_scale_detected_80pct"]
+        pts = " ".join(f"{q['scale']:.4g}:{q['detected']}/{q['n']}" for q in p["points"])
+        mag = _magnitude_text(p.get("smallest_magnitude_detected_80pct")) if s80 else "not reached"
+        lines.append(f"{nm},{'' if s80 is None else f'{s80:.4g}'},\"{mag}\",{pts}")
+    return "\n".join(lines) + "\n"
+
+
+def power_figure(power: dict, path):
+    """Detection rate against the injected magnitude (as a fraction of the proof magnitude), one line per
+    effect, the 80 % line and the binomial standard error of each point."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for i, (nm, p) in enumerate(power.items()):
+        pts = sorted(p["points"], key=lambda q: q["scale"])
+        if not pts:
+            continue
+        x = np.array([q["scale"] for q in pts])
+        r = np.array([q["detected"] / q["n"] for q in pts])
+        se = np.sqrt(r * (1 - r) / np.array([q["n"] for q in pts]))
+        ax.errorbar(x, r, yerr=se, marker="o", ms=4, capsize=2, lw=1, label=nm,
+                    color=f"C{i % 10}", ls="-" if i < 10 else "--")
+    ax.axhline(0.8, color="k", lw=0.8, ls=":")
+    ax.set_xscale("log")
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_xlabel("injected magnitude / proof magnitude")
+    ax.set_ylabel("fraction of seeds in which the effect is named")
+    ax.set_title("Detection power of the mismatch diagnosis (dotted: 80 %)")
+    ax.legend(fontsize=7, loc="lower right", ncol=2)
+    fig.tight_layout()
+    return figures.save(fig, path)
+
+
+def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=None, power_seeds: int = 0,
+                workers: int = 2, base=None, site=None, prov=None, metrics_path=None, log=print) -> dict:
+    """Run the concealed-effect proof and write its products into ``out_dir`` (see the module docstring).
+
+    ``base``: the study's ``calibration_session`` config (path, noise, rate) and ``site``: its site; every proof
+    session is that session with one effect hidden (``conceal: true``)."""
+    from calib.core.progress import Progress
+
+    st = check_settings(settings)
+    names = list(sessions) if sessions else list(dg.PROOF_SESSIONS)
+    unknown = sorted(set(names) - set(dg.PROOF_SESSIONS))
+    if unknown:
+        raise ValueError(f"diagnosis.proof.sessions: unknown session(s) {unknown}; known: {list(dg.PROOF_SESSIONS)}")
+    out_dir = Path(out_dir)
+    n_single = sum(dg.PROOF_SESSIONS[nm][0] == "single" for nm in names)
+    prog = Progress(len(names) + (5 * n_single if power_seeds else 0), label="proof sessions", every_s=0.0)
+    log(f"proof: {len(names)} sessions x {n_seeds} seeds (first seed {first_seed}), {workers} worker(s)"
+        + (f"; detection power with {power_seeds} seeds per magnitude" if power_seeds else ""))
+    if base is not None:
+        base = {**base, "site": dict(site or base.get("site") or dg.SESSION_BASE["site"])}
+    out = dg.run_proof(out_dir, n_seeds=n_seeds, effects=names, seed=first_seed, workers=workers, settings=st,
+                       power_scales="auto" if power_seeds else None, power_seeds=power_seeds, base=base,
+                       progress=lambda i, n, nm: prog(extra=nm))
+    write_netcdf(proof_dataset(out), out_dir / "proof.nc", prov)
+    if out.get("power"):
+        dg.write_text_atomic(out_dir / "power.csv", power_csv(out["power"]))
+        power_figure(out["power"], out_dir / "power.png")
+    acc = out["acceptance"]
+    metrics = {"n_seeds": n_seeds, "sessions": len(names)}
+    for s in out["sessions"]:
+        m = {"rate": s["rate"], "false_discovery_rate": s["false_discovery_rate"]}
+        if "coverage" in s:
+            m["coverage"] = s["coverage"]
+        if s.get("chi2_after_p_ge_0.01") is not None:
+            m["chi2_after_p_ge_0.01"] = s["chi2_after_p_ge_0.01"]
+        metrics[s["session"]] = m
+    metrics["all_acceptance_met"] = all(v is not False and v is not None and (not isinstance(v, float) or v >= 0.95)
+                                        for a in acc.values() for v in a.values())
+    log(Path(out_dir / "proof.md").read_text())
+    log(f"wall time {out['_timings']['total_s']:.1f} s")
+    if metrics_path:
+        dg.write_json_atomic(metrics, metrics_path)
+    return out
+
+
+def real_stage(out_dir, settings=None, config_dir=None, inject=None, metrics_path=None, log=print) -> dict:
+    """Diagnose every shared real recording and the IMU-TK session with a known term injected."""
+    st = check_settings(settings)
+    out = dg.run_real(out_dir, config_dir=config_dir, settings=st, inject=inject)
+    for r in out["recordings"]:
+        log(f"{r['recording']}: {r['verdict']} -- {r.get('reason', '')}")
+    inj = out.get("injection")
+    if inj:
+        log(f"injection into {inj['recording']}: {inj['injected']} -> named: {inj['named']}; found {inj['found']}")
+        for p in inj["recovered"]:
+            log(f"  {p['name']}: injected {p['injected']:.4g}, found - uninjected {p['found_minus_uninjected']:.4g}"
+                f" (inside 95 % CI: {p['injected_inside_ci95_of_difference']})")
+    metrics = {r["recording"]: {"verdict": r["verdict"], "n_found": len(r.get("found") or [])}
+               for r in out["recordings"]}
+    if inj:
+        metrics["injection_named"] = bool(inj["named"])
+    if metrics_path:
+        dg.write_json_atomic(metrics, metrics_path)
+    return out

@@ -1,0 +1,114 @@
+"""Seed 000 §4 static-navigation check (Figure 10): navigate a static recording of the calibrated unit with
+the parameters identified by each method, and the project's ``calib navigate`` stage.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from calib.figures import style as figures
+from calib.nav import navigation
+from calib.io.netcdf import write_netcdf
+from calib.core.triad import TriadModel
+
+
+def _median_run(path):
+    """Parameter vector of the run with the median L (a representative run, not the best) of a runs file."""
+    with xr.open_dataset(path, engine="netcdf4") as ds:
+        L = ds["L"].values
+        k = int(np.argsort(L)[len(L) // 2])
+        return ds["estimate"].values[k], int(ds["run"].values[k])
+
+
+def method_calibrations(cal_dir, methods):
+    """TriadCalibration per method: accelerometers from the paper's 12-parameter norm fit, gyros from the
+    dynamic path (L_gm then biases), each the median-L run; and the project's default calibration."""
+    cal_dir = Path(cal_dir)
+    out, notes = {}, {}
+    for m in methods:
+        if m == "default":
+            with xr.open_dataset(cal_dir / "default_calibration.nc", engine="netcdf4") as d:
+                a, g = d["accel"].values, d["gyro"].values
+            notes[m] = "default: 9-parameter norm accelerometers rotated to the body frame + eq. 25 gyros"
+        else:
+            a, ra = _median_run(cal_dir / "runs" / f"accel_{m}.nc")
+            g, rg = _median_run(cal_dir / "runs" / f"gyro_dynamic_{m}.nc")
+            notes[m] = f"{m}: accel run {ra}, gyro run {rg} (median L of each)"
+        out[m] = navigation.TriadCalibration(TriadModel.from_vector(a, "g", "count s-1"),
+                                             TriadModel.from_vector(g, "deg h-1", "count s-1"))
+    return out, notes
+
+
+def run_static_check(recording_path, cal_dir, out_nc, fig, metrics_path, check: dict, nav: dict, prov=None, log=print):
+    """Seed 000 Figure 10: east/north velocity and latitude/longitude errors of the static navigation with each
+    method's parameters, initial position and attitude known (the paper's 'download' of initial values)."""
+    methods = list(check["methods"])
+    if "default" not in methods:
+        methods.append("default")
+    cals, notes = method_calibrations(cal_dir, methods)
+    parts = []
+    for m in methods:
+        ds = navigation.navigate_recording(recording_path, calibration=cals[m], init="attrs",
+                                           nav_rate_hz=nav["nav_rate_hz"], output_interval_s=nav["output_interval_s"],
+                                           progress=lambda d, n, m=m: None)
+        keep = ["vE_err", "vN_err", "lat_err_arcmin", "lon_err_arcmin", "north_err_m", "east_err_m",
+                "pitch_err_arcmin", "roll_err_arcmin", "yaw_err_arcmin"]
+        parts.append(ds[keep].expand_dims(calibration=[m]))
+        log(f"{notes[m]}: max |vE| {float(np.abs(ds['vE_err']).max()):.3f} m/s, "
+            f"max |vN| {float(np.abs(ds['vN_err']).max()):.3f} m/s")
+    res = xr.concat(parts, dim="calibration")
+    res.attrs.update({"initial_condition": "true position and attitude (seed 000 §4.2)",
+                      "vertical_channel": "held", "methods": json.dumps(notes)})
+    write_netcdf(res, out_nc, prov)
+    _fig10(fig, res)
+    metrics = {m: {"max_abs_vE_m_s": float(np.abs(res["vE_err"].sel(calibration=m)).max()),
+                   "max_abs_vN_m_s": float(np.abs(res["vN_err"].sel(calibration=m)).max()),
+                   "final_position_error_m": float(np.hypot(res["north_err_m"].sel(calibration=m)[-1],
+                                                            res["east_err_m"].sel(calibration=m)[-1]))}
+               for m in methods}
+    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    return res
+
+
+def _fig10(path, res):
+    import matplotlib.pyplot as plt
+
+    fig, axs = plt.subplots(2, 2, figsize=(9, 6), sharex=True)
+    t = res["time"].values
+    panels = [("vE_err", "east velocity error [m/s]"), ("vN_err", "north velocity error [m/s]"),
+              ("lat_err_arcmin", "latitude error [′]"), ("lon_err_arcmin", "longitude error [′]")]
+    for ax, (v, lab) in zip(axs.flat, panels):
+        for m in res["calibration"].values:
+            ax.plot(t, res[v].sel(calibration=m).values, lw=0.9, label=str(m))
+        ax.set_ylabel(lab)
+    for ax in axs[-1]:
+        ax.set_xlabel("time [h]")
+    axs[0, 0].legend(fontsize=7)
+    fig.suptitle("Seed 000 Fig. 10: static navigation with each method's calibration (true initial state)")
+    fig.tight_layout()
+    figures.save(fig, path)
+
+
+def load_calibration(nc_path):
+    """TriadCalibration from a ``default_calibration.nc`` of the calibrate stage (body frame, counts)."""
+    with xr.open_dataset(nc_path, engine="netcdf4") as d:
+        return navigation.TriadCalibration(TriadModel.from_vector(d["accel"].values, "g", "count s-1"),
+                                           TriadModel.from_vector(d["gyro"].values, "deg h-1", "count s-1"))
+
+
+def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print):
+    """Navigate one recording (streamed, progress in the log) and write the labelled error dataset."""
+    from calib.io.recording import read_header
+    from calib.core.progress import Progress
+
+    cal = load_calibration(calibration_nc) if calibration_nc else None
+    bar = Progress(read_header(recording_path).n_samples, f"navigating {Path(recording_path).name}")
+    ds = navigation.navigate_recording(recording_path, calibration=cal, init=init, nav_rate_hz=nav["nav_rate_hz"],
+                                       output_interval_s=nav["output_interval_s"], progress=lambda d, n: bar(d))
+    write_netcdf(ds, out_nc, prov)
+    log(f"final errors: vE {float(ds['vE_err'][-1]):.4f} m/s, vN {float(ds['vN_err'][-1]):.4f} m/s, "
+        f"lat {float(ds['lat_err_arcmin'][-1]):.3f}', lon {float(ds['lon_err_arcmin'][-1]):.3f}'")
+    return ds

@@ -1,0 +1,628 @@
+"""Parameter sweeps: one small synthetic study per point of a grid, gathered into one labelled netCDF.
+
+A sweep file (``config/sweeps/*.yaml``, schema ``workflow/schemas/sweep.schema.yaml``) names a ``kind``, the
+``grid`` of swept parameters (full factorial), optional ``fixed`` values of other sweep parameters and
+``base`` overrides merged into the study config (same keys and ranges as ``config/config.yaml``)::
+
+    name: calibration_budget
+    kind: calibration              # calibration | drift_pso
+    base: {calibration_session: {dwell_s: 10.0, rotation_rates_deg_s: []}, calibration: {runs: 4}}
+    fixed: {method: ide, problem: accel}
+    grid: {NP: [10, 20, 40], EG: [30, 60], noise_scale: [1, 10], seed: [1, 2]}
+
+The points become a :class:`snakemake.utils.Paramspace` (one path component per point,
+``noise_scale~1_seed~1_NP~10_EG~30``). Parameters that change the synthetic session (``data`` parameters:
+``seed``, ``noise_scale``, ``dwell_s`` / ``window_h``) come first, so the points that share a session share
+one simulated recording (a second Paramspace over those columns).
+
+Kinds and what one point computes:
+
+* ``calibration`` (seed 000): ``runs`` identifications of one problem (``accel``: L_a of eq. 7 in the
+  paper's 12-parameter form; ``gyro_static``: L_g of eq. 7; ``gyro_dynamic``: L_gm of eq. 26, then the biases)
+  with one optimiser (population NP, EG generations; optimiser run r uses seed ``seeds.calibration + r``);
+  L* = the best of 10 multi-start least-squares fits and of the runs; success: L <= (1 + tol) L*
+  (``calibration.success_rel_tol``, the rule of Table 5). Error of the identified (K E)(K E)^T (what the
+  norm determines) and of the biases against the simulated truth.
+* ``drift_pso`` (seed 001): ``tests`` PSOBE runs (test k uses seed ``seeds.drift + k``) on the first
+  ``window_h`` hours; the Cramer-Rao bound of the drift for that window and noise; the minimiser of J (eq. 18)
+  over the PSO search box (a linear programme on the linearised navigation errors, :func:`argmin_J`), so the
+  error of a PSO estimate splits into the optimiser's part (estimate - argmin J) and the estimator's
+  (argmin J - truth), both in Cramer-Rao bounds.
+"""
+from __future__ import annotations
+
+import copy
+import itertools
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+KINDS = ("calibration", "drift_pso")
+PROBLEMS = ("accel", "gyro_static", "gyro_dynamic")
+
+
+class SweepError(ValueError):
+    """A sweep file that cannot be run; the message names the file, the field and the fix."""
+
+
+# ---------------------------------------------------------------------------------------------------------
+# sweep parameters: name -> how a value enters the study config
+# ---------------------------------------------------------------------------------------------------------
+def _set(*keys):
+    def apply(cfg, v):
+        d = cfg
+        for k in keys[:-1]:
+            d = d.setdefault(k, {})
+        d[keys[-1]] = v
+    return apply
+
+
+def _scale_cal_noise(cfg, s):
+    n = cfg["calibration_session"].setdefault("noise", {})
+    for k in ("accel_vrw_ug_rthz", "accel_bias_instability_ug", "gyro_arw_deg_rth", "gyro_bias_instability_deg_h"):
+        if k in n:
+            n[k] = n[k] * s
+
+
+def _scale_nav_noise(cfg, s):
+    ns = cfg["navigation_session"]
+    gn = ns.setdefault("gyro_noise", {})
+    for k in ("arw_deg_rth", "white_deg_h"):
+        if k in gn:
+            gn[k] = gn[k] * s
+    if "accel_vrw_ug_rthz" in ns:
+        ns["accel_vrw_ug_rthz"] = ns["accel_vrw_ug_rthz"] * s
+
+
+def _window(cfg, v):
+    cfg["drift"]["window_h"] = v
+
+
+@dataclass(frozen=True)
+class Parameter:
+    name: str
+    data: bool  # True: changes the synthetic session
+    apply: object  # (cfg, value) -> None
+    doc: str
+
+
+#: the sweep parameters of each kind, in path order (data parameters first). Keep in step with
+#: workflow/schemas/sweep.schema.yaml (tests/test_sweeps.py checks it).
+PARAMETERS = {
+    "calibration": [
+        Parameter("noise_scale", True, _scale_cal_noise, "factor on the 4 noise sigmas of calibration_session.noise"),
+        Parameter("seed", True, _set("seeds", "data"), "noise realisation of the session (seeds.data)"),
+        Parameter("dwell_s", True, _set("calibration_session", "dwell_s"), "dwell per static position [s]"),
+        Parameter("method", False, _set("sweep", "method"), "optimiser (calibration.methods names); default ide"),
+        Parameter("problem", False, _set("sweep", "problem"), "accel | gyro_static | gyro_dynamic; default accel"),
+        Parameter("NP", False, _set("calibration", "NP"), "population size"),
+        Parameter("EG", False, _set("calibration", "EG"), "generations"),
+        Parameter("runs", False, _set("calibration", "runs"), "independent optimiser runs per point"),
+    ],
+    "drift_pso": [
+        Parameter("noise_scale", True, _scale_nav_noise, "factor on navigation_session gyro (and accel) noise"),
+        Parameter("seed", True, _set("seeds", "data"), "noise realisation of the session (default seeds.data + 2)"),
+        Parameter("window_h", True, _window, "estimation window = simulated session length [h]"),
+        Parameter("variant", False, _set("drift", "pso", "variant"), "paper | standard"),
+        Parameter("particles", False, _set("drift", "pso", "particles"), "swarm size"),
+        Parameter("generations", False, _set("drift", "pso", "generations"), "PSO generations"),
+        Parameter("tests", False, _set("drift", "tests"), "PSOBE runs per point"),
+    ],
+}
+SWEEP_DEFAULTS = {"calibration": {"method": "ide", "problem": "accel"}, "drift_pso": {}}
+#: study-config sections a point of each kind reads (what goes into its params, hence its rerun trigger)
+SECTIONS = {"calibration": ("seeds", "site", "calibration_session", "calibration"),
+            "drift_pso": ("seeds", "site", "navigation_session", "drift")}
+
+
+def parameter_names(kind: str) -> list[str]:
+    return [p.name for p in PARAMETERS[kind]]
+
+
+def deep_merge(base: dict, over: dict) -> dict:
+    """``base`` updated recursively by ``over`` (dicts merged, everything else replaced); copies."""
+    out = copy.deepcopy(base)
+    for k, v in (over or {}).items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def _py(v):
+    """numpy/pandas scalars -> plain Python (params must serialise and compare stably)."""
+    return v.item() if hasattr(v, "item") else v
+
+
+def _fmt_error(path: str, err) -> str:
+    where = ".".join(str(p) for p in err.absolute_path)
+    return f"{path}: {where or '(top level)'}: {err.message}"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the sweep
+# ---------------------------------------------------------------------------------------------------------
+@dataclass
+class Sweep:
+    """A validated sweep file, its points as a Paramspace, and the study config of each point."""
+
+    path: str
+    name: str
+    kind: str
+    description: str
+    base: dict
+    fixed: dict
+    grid: dict
+    study: dict  # study config with ``base`` merged (validated against the study schema)
+    columns: list = field(default_factory=list)
+    data_columns: list = field(default_factory=list)
+    paramspace: object = None
+    sessionspace: object = None
+    _points: dict = field(default_factory=dict)
+    _sessions: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        import pandas as pd
+        from snakemake.utils import Paramspace
+
+        self.columns = [p.name for p in PARAMETERS[self.kind] if p.name in self.grid]
+        self.data_columns = [p.name for p in PARAMETERS[self.kind] if p.data and p.name in self.grid]
+        rows = list(itertools.product(*(self.grid[c] for c in self.columns)))
+        df = pd.DataFrame(rows, columns=self.columns)
+        self.paramspace = Paramspace(df, filename_params="*", single_wildcard="point")
+        self._points = {p: {c: _py(v) for c, v in zip(self.columns, row)}
+                        for p, row in zip(self.paramspace.instance_patterns, rows)}
+        if self.data_columns:
+            sdf = df[self.data_columns].drop_duplicates().reset_index(drop=True)
+        else:  # nothing about the data is swept: one session for all points
+            sdf = pd.DataFrame({"session": ["base"]})
+        self.sessionspace = Paramspace(sdf, filename_params="*", single_wildcard="session")
+        self._sessions = {s: {c: _py(v) for c, v in zip(sdf.columns, row)}
+                          for s, row in zip(self.sessionspace.instance_patterns, sdf.itertuples(index=False))}
+
+    # ---- points ----
+    @property
+    def points(self) -> list[str]:
+        """Point wildcards (Paramspace instance patterns), in grid order."""
+        return list(self._points)
+
+    @property
+    def sessions(self) -> list[str]:
+        return list(self._sessions)
+
+    def values(self, point: str) -> dict:
+        """Swept values of one point (by its wildcard)."""
+        try:
+            return dict(self._points[point])
+        except KeyError:
+            raise SweepError(f"{self.path}: {point!r} is not a point of sweep {self.name!r}") from None
+
+    def session_of(self, point: str) -> str:
+        v = self.values(point)
+        if not self.data_columns:
+            return self.sessions[0]
+        key = {c: v[c] for c in self.data_columns}
+        for s, sv in self._sessions.items():
+            if sv == key:
+                return s
+        raise SweepError(f"{self.path}: no session for point {point!r}")  # pragma: no cover - by construction
+
+    def point_config(self, point: str) -> dict:
+        """Study sections read by a point (base, fixed and swept values applied) plus ``sweep`` settings."""
+        vals = {**self.fixed, **self.values(point)}
+        return self._config(vals)
+
+    def session_config(self, session: str) -> dict:
+        """What the session rule needs: the session section, the site and the data seed."""
+        try:
+            vals = {k: v for k, v in self._sessions[session].items() if k != "session"}
+        except KeyError:
+            raise SweepError(f"{self.path}: {session!r} is not a session of sweep {self.name!r}") from None
+        cfg = self._config({**{k: v for k, v in self.fixed.items() if self._is_data(k)}, **vals})
+        key = "calibration_session" if self.kind == "calibration" else "navigation_session"
+        return {"kind": self.kind, "session": cfg[key], "site": cfg["site"], "seed": cfg["seeds"]["data"]}
+
+    def _is_data(self, name):
+        return any(p.name == name and p.data for p in PARAMETERS[self.kind])
+
+    def _config(self, vals: dict) -> dict:
+        cfg = {k: copy.deepcopy(self.study[k]) for k in SECTIONS[self.kind] if k in self.study}
+        if self.kind == "drift_pso":  # the main study's navigation session uses seeds.data + 2
+            cfg["seeds"]["data"] = cfg["seeds"]["data"] + 2
+        cfg["sweep"] = dict(SWEEP_DEFAULTS[self.kind])
+        for p in PARAMETERS[self.kind]:
+            if p.name in vals:
+                p.apply(cfg, vals[p.name])
+        if self.kind == "drift_pso":  # simulate exactly the estimation window
+            cfg["navigation_session"]["duration_h"] = cfg["drift"]["window_h"]
+        return cfg
+
+
+def load(path, study: dict, sweep_schema, study_schema=None) -> Sweep:
+    """Read and validate a sweep file against ``sweep_schema`` (and the merged study config against
+    ``study_schema`` when given). Raises :class:`SweepError` naming the file, the field and the fix."""
+    import jsonschema
+    import yaml
+
+    path = str(path)
+    p = Path(path)
+    if not p.is_file():
+        raise SweepError(f"sweep file {path!r} not found -- fix: check the `sweeps:` list of the study config")
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise SweepError(f"{path}: not valid YAML: {exc}") from exc
+    if not isinstance(doc, dict):
+        raise SweepError(f"{path}: expected a mapping with name, kind and grid")
+    kind = doc.get("kind")
+    if kind in PARAMETERS:  # name unknown parameters first, with the list of known ones
+        known = parameter_names(kind)
+        for section in ("grid", "fixed"):
+            sec = doc.get(section) or {}
+            if isinstance(sec, dict):
+                for k in sec:
+                    if k not in known:
+                        raise SweepError(f"{path}: {section}.{k}: unknown sweep parameter {k!r} for kind {kind!r} "
+                                         f"-- fix: use one of {', '.join(known)}")
+    schema = yaml.safe_load(Path(sweep_schema).read_text())
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(doc), key=lambda e: list(e.absolute_path))
+    if errors:
+        raise SweepError("; ".join(_fmt_error(path, e) for e in errors[:5]))
+    grid, fixed = doc["grid"], doc.get("fixed") or {}
+    both = sorted(set(grid) & set(fixed))
+    if both:
+        raise SweepError(f"{path}: {', '.join(both)} both swept (grid) and fixed -- fix: keep one")
+    base = doc.get("base") or {}
+    merged = deep_merge(study, base)
+    merged.pop("sweeps", None)
+    if study_schema is not None:
+        sschema = yaml.safe_load(Path(study_schema).read_text())
+        errs = list(jsonschema.Draft202012Validator(sschema).iter_errors(merged))
+        if errs:
+            raise SweepError("; ".join(f"{path}: base." + _fmt_error(path, e).split(": ", 1)[1] for e in errs[:5]))
+    return Sweep(path, doc["name"], kind, doc.get("description", ""), base, fixed, grid, merged)
+
+
+def load_all(paths, study: dict, sweep_schema, study_schema=None) -> dict:
+    """name -> Sweep for the study's ``sweeps:`` list; refuses two sweeps of the same name."""
+    out = {}
+    for p in paths or []:
+        s = load(p, study, sweep_schema, study_schema)
+        if s.name in out:
+            raise SweepError(f"{p}: sweep name {s.name!r} already used by {out[s.name].path} -- fix: rename one")
+        out[s.name] = s
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------
+# stage functions (called by workflow/scripts/sweep_*.py)
+# ---------------------------------------------------------------------------------------------------------
+def simulate_session(scfg: dict, out, truth, rule="sweep_session"):
+    """The synthetic session of one group of points (``scfg`` from :meth:`Sweep.session_config`)."""
+    from calib.studies import stages
+
+    if scfg["kind"] == "calibration":
+        stages.simulate_calibration(scfg["session"], scfg["site"], scfg["seed"], out, truth, rule=rule)
+    else:
+        stages.simulate_navigation(scfg["session"], scfg["site"], scfg["seed"], out, truth, rule=rule)
+
+
+def run_point(kind: str, recording_path, truth_path, cfg: dict, values: dict, out_nc, prov=None, log=print):
+    """One sweep point; writes a small netCDF (scalars and per-run/test arrays, no wall times)."""
+    if kind == "calibration":
+        ds = calibration_point(recording_path, truth_path, cfg, log=log)
+    elif kind == "drift_pso":
+        ds = drift_point(recording_path, cfg, log=log)
+    else:
+        raise SweepError(f"unknown sweep kind {kind!r}; one of {', '.join(KINDS)}")
+    ds.attrs["point"] = json.dumps(values, sort_keys=True)
+    from calib.io.netcdf import write_netcdf
+
+    write_netcdf(ds, out_nc, prov)
+    return ds
+
+
+def _problem_fn(inp, problem):
+    from calib.calibration import fit as cal
+
+    if problem == "accel":
+        return lambda m, rng, budget, opts: cal.norm_calibration(inp.accel_static, form="paper12", method=m, rng=rng,
+                                                                  budget=budget, **opts)
+    if problem == "gyro_static":
+        return lambda m, rng, budget, opts: cal.norm_calibration(inp.gyro_static, form="paper12", method=m, rng=rng,
+                                                                  budget=budget, **opts)
+    if inp.gyro_pairs is None:
+        raise SweepError("problem gyro_dynamic needs rotation segments -- fix: give "
+                         "calibration_session.rotation_rates_deg_s in the sweep's base")
+    return lambda m, rng, budget, opts: cal.gyro_dynamic(inp.gyro_pairs, inp.gyro_static, method=m, rng=rng,
+                                                         budget=budget, **opts)
+
+
+def calibration_point(recording_path, truth_path, cfg: dict, log=print):
+    """``runs`` identifications of one seed-000 problem with one optimiser; see the module docstring."""
+    import warnings
+
+    import xarray as xr
+
+    from calib.calibration import objectives as ob
+    from calib.io import recording
+    from calib.signal import segments
+    from calib.studies.calibration import _truth_vector, method_options
+    from calib.core.triad import PARAM_NAMES
+
+    ccfg, sw = cfg["calibration"], cfg["sweep"]
+    method, problem = sw["method"], sw["problem"]
+    if problem not in PROBLEMS:
+        raise SweepError(f"sweep problem {problem!r}: one of {', '.join(PROBLEMS)}")
+    R, NP, EG = int(ccfg["runs"]), int(ccfg["NP"]), int(ccfg["EG"])
+    seed = int(cfg["seeds"]["calibration"])
+    tol = float(ccfg.get("success_rel_tol", 0.01))
+    inp = segments.extract(recording.load(recording_path))
+    fn = _problem_fn(inp, problem)
+    opts = method_options(method, ccfg)
+    L = np.empty(R)
+    x = np.empty((R, 12))
+    hist = np.full((R, EG + 1), np.nan)
+    on_bound = np.zeros(R, np.int8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # bound hits are counted below
+        for r in range(R):
+            res = fn(method, np.random.default_rng(seed + r), (NP, EG), opts)
+            L[r], x[r] = res.L, res.paper_vector()
+            on_bound[r] = bool(res.on_bound)
+            h = getattr(res.optimizer, "history", None)
+            if h is not None and len(h):
+                k = min(len(h), EG + 1)
+                hist[r, :k] = np.asarray(h)[:k]
+        lsq = [fn("lsq", np.random.default_rng(seed + 99_000 + r), (NP, EG), {}).L for r in range(10)]
+    L_star = float(min(min(lsq), L.min()))
+    success = L <= L_star * (1.0 + tol)
+    sensor = "accel" if problem == "accel" else "gyro"
+    truth = json.loads(Path(truth_path).read_text()) if truth_path else None
+    tv = _truth_vector(truth, sensor) if truth else None
+    gram_err = np.full(R, np.nan)
+    bias_err = np.full((R, 3), np.nan)
+    if tv is not None:
+        form = ob.Form("paper12")
+        Mt, bt = form.KE_b(tv)
+        Gt = Mt @ Mt.T
+        for r in range(R):
+            M, b = form.KE_b(x[r])
+            gram_err[r] = np.abs(M @ M.T - Gt).max() / np.abs(Gt).max()
+            bias_err[r] = b - bt
+    log(f"{problem} {method} NP={NP} EG={EG}: success {100 * success.mean():.0f} %, mean L {L.mean():.4g}, "
+        f"L* {L_star:.4g}")
+    unit = "count s-1"
+    return xr.Dataset(
+        {"L": (("run",), L, {"long_name": res.objective}),
+         "success": (("run",), success.astype(np.int8), {"long_name": f"L <= (1 + {tol}) L*"}),
+         "success_pct": ((), 100.0 * float(success.mean()), {"units": "%"}),
+         "mean_L": ((), float(L.mean())),
+         "L_star": ((), L_star, {"long_name": "best of 10 multi-start least squares and the runs"}),
+         "mean_L_over_L_star": ((), float(L.mean() / L_star) if L_star > 0 else math.nan),
+         "on_bound": (("run",), on_bound, {"long_name": "a parameter ended on a search bound"}),
+         "estimate": (("run", "parameter"), x, {"long_name": "K, E, b (seed 000 eq. 8) as identified"}),
+         "gram_rel_error": (("run",), gram_err, {"long_name": "max |(KE)(KE)^T - truth| / max |truth|"}),
+         "bias_error": (("run", "axis"), bias_err, {"units": unit}),
+         "history": (("run", "generation"), hist, {"long_name": "best L per generation"})},
+        coords={"run": np.arange(R), "parameter": list(PARAM_NAMES), "axis": ["x", "y", "z"],
+                "generation": np.arange(EG + 1)},
+        attrs={"problem": problem, "method": method, "NP": NP, "EG": EG, "runs": R,
+               "objective": res.objective, "success_rel_tol": tol})
+
+
+def drift_point(recording_path, cfg: dict, log=print):
+    """``tests`` PSOBE runs against the noise limit and the minimiser of J; see the module docstring."""
+    import xarray as xr
+
+    from calib.drift import psobe as drift
+    from calib.drift import pso
+    from calib.studies.drift import _attitude_rad, _noise_psd
+    from calib.core.earth import DEG_PER_H
+
+    session, site, dcfg = cfg["navigation_session"], cfg["site"], cfg["drift"]
+    att = _attitude_rad(session["attitude_deg"])
+    win = drift.load_window(recording_path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
+    cost = drift.NavigationCost(win, dcfg["output_interval_s"], dcfg["weights"], dcfg["position_unit"])
+    settings = pso.PSOSettings.from_config(dcfg["pso"])
+    truth = np.asarray(session["gyro_drift_deg_h"], float)
+    T, G = int(dcfg["tests"]), settings.generations
+    seed = int(cfg["seeds"]["drift"])
+    est = np.empty((T, 3))
+    J = np.empty(T)
+    hist = np.empty((T, G + 1))
+    pinned = np.zeros((T, 3), np.int8)
+    for k in range(T):
+        r = pso.minimize(cost, np.random.default_rng(seed + k), settings)
+        est[k], J[k], hist[k] = r.best, r.best_cost, r.history
+        pinned[k, r.pinned] = 1
+    eps_min, J_min = argmin_J(cost, settings.lower, settings.upper)
+    J_min = float(cost(eps_min[None, :])[0])  # J of the linearised minimiser, by navigation
+    if J.min() < J_min:  # a test did better (the errors are not exactly linear in the drift): use it
+        eps_min, J_min = est[int(np.argmin(J))].copy(), float(J.min())
+    arw, white = _noise_psd(session)
+    dt_out = cost.out_every * win.dt_nav
+    crb = drift.noise_limit(dcfg["window_h"], dt_out, win.lat0, win.init.cbn(), arw, dcfg["initial_condition"],
+                            win.h0, white, 1.0 / win.sample_rate_hz)[0] / DEG_PER_H
+    z_total = (est - truth) / crb
+    z_opt = (est - eps_min) / crb
+    log(f"particles={settings.particles} generations={G}: rms error {np.sqrt(np.mean(z_total ** 2)):.3g} bounds, "
+        f"optimiser part {np.sqrt(np.mean(z_opt ** 2)):.3g} bounds, J excess {np.mean(J / J_min - 1):.3g}")
+    d = {"units": "deg h-1"}
+    return xr.Dataset(
+        {"estimate": (("test", "axis"), est, {**d, "long_name": "PSOBE gyro-drift estimate"}),
+         "J": (("test",), J, {"long_name": "J (seed 001 eq. 18) at the estimate"}),
+         "J_history": (("test", "generation"), hist, {"long_name": "J of the global best per generation"}),
+         "pinned": (("test", "axis"), pinned, {"long_name": "best particle on a range bound"}),
+         "truth": (("axis",), truth, d),
+         "crb": (("axis",), crb, {**d, "long_name": "Cramer-Rao bound, 1 sigma"}),
+         "argmin_J": (("axis",), eps_min, {**d, "long_name": "minimiser of J in the search range (linear programme)"}),
+         "J_min": ((), J_min),
+         "error_in_bounds": (("test", "axis"), z_total, {"long_name": "(estimate - truth) / CRB"}),
+         "optimizer_error_in_bounds": (("test", "axis"), z_opt, {"long_name": "(estimate - argmin J) / CRB"}),
+         "rms_error_in_bounds": ((), float(np.sqrt(np.mean(z_total ** 2)))),
+         "rms_optimizer_error_in_bounds": ((), float(np.sqrt(np.mean(z_opt ** 2)))),
+         "mean_J_excess": ((), float(np.mean(J / J_min - 1.0)), {"long_name": "mean of J / min J - 1"})},
+        coords={"test": np.arange(1, T + 1), "axis": ["x", "y", "z"], "generation": np.arange(G + 1)},
+        attrs={"particles": settings.particles, "generations": G, "variant": settings.variant,
+               "window_h": dcfg["window_h"], "initial_condition": dcfg["initial_condition"],
+               "frame": "body axes (default: along east-north-up)"})
+
+
+def argmin_J(cost, lower: float, upper: float, step_deg_h: float = 0.01):
+    """Minimiser of J (seed 001 eq. 18) over the search box [lower, upper]^3 deg/h.
+
+    The navigation errors of a stationary window are linear in the drift compensation c (the premise of
+    :func:`calib.drift.psobe.linear_lsq`): e(c) = e0 + H c, with H from one navigation run per axis (step
+    ``step_deg_h``). J = sum of rho-weighted |e| is then convex and piecewise linear in c, and its minimum
+    over the box is a linear programme: min sum(t) s.t. -t <= e0 + H c <= t, lower <= c <= upper.
+    Returns (c [deg/h] (3,), J of the linear model).
+    """
+    from scipy.optimize import linprog
+
+    from calib.drift import psobe as drift
+
+    kl, kn = drift.position_scale(cost.unit, cost.win.lat0, cost.win.h0)
+    X = np.vstack([np.zeros(3), step_deg_h * np.eye(3)])
+    err = cost.errors(X)
+    Y = np.concatenate([err["vE"], err["vN"], kl * err["lat"], kn * err["lon"]], axis=-1)
+    w = np.repeat(np.asarray(cost.weights, float), err["vE"].shape[-1])
+    Y = Y * w
+    y0, H = Y[0], (Y[1:] - Y[0]).T / step_deg_h  # (N,), (N, 3)
+    n = y0.size
+    eye = np.eye(n)
+    A = np.block([[H, -eye], [-H, -eye]])
+    b = np.concatenate([-y0, y0])
+    res = linprog(np.concatenate([np.zeros(3), np.ones(n)]), A_ub=A, b_ub=b,
+                  bounds=[(lower, upper)] * 3 + [(0, None)] * n, method="highs")
+    if not res.success:  # pragma: no cover - a bounded feasible LP always solves
+        raise RuntimeError(f"argmin_J: linear programme failed: {res.message}")
+    return res.x[:3], float(res.fun)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# gather
+# ---------------------------------------------------------------------------------------------------------
+SUMMARY = {"calibration": ("success_pct", "mean_L_over_L_star", "mean_L", "L_star"),
+           "drift_pso": ("rms_optimizer_error_in_bounds", "rms_error_in_bounds", "mean_J_excess")}
+
+
+def gather(kind: str, name: str, paths, values: list[dict], columns: list[str], out_nc, out_csv, fig,
+           metrics_path=None, attrs=None, prov=None):
+    """All points into one netCDF with the swept parameters as dimensions (grid order), a CSV of the
+    scalar results per point, and the summary figure."""
+    import xarray as xr
+
+    if len(paths) != len(values):
+        raise SweepError(f"sweep {name}: {len(paths)} point files for {len(values)} points")
+    dss = []
+    for p, v in zip(paths, values):
+        with xr.open_dataset(p, engine="netcdf4") as d:
+            ds = d.load()
+        ds.attrs = {}
+        dss.append(ds)
+    ds = xr.concat(dss, dim="point", join="outer", fill_value=np.nan, coords="minimal", compat="override",
+                   combine_attrs="drop")
+    ds = ds.assign_coords({c: ("point", [v[c] for v in values]) for c in columns})
+    if len(columns) == 1:  # a single swept parameter: it becomes the dimension itself
+        ds = ds.swap_dims({"point": columns[0]})
+    else:
+        ds = ds.set_index(point=columns).unstack("point")
+    ds = ds.transpose(*columns, ...)
+    for c in columns:
+        ds[c].attrs["long_name"] = f"swept: {c}"
+    ds.attrs.update({"sweep": name, "kind": kind, "swept": json.dumps(columns), **(attrs or {})})
+    from calib.io.netcdf import write_netcdf
+
+    write_netcdf(ds, out_nc, prov)
+    rows = [",".join(columns + list(SUMMARY[kind]))]
+    for p, v in zip(dss, values):
+        rows.append(",".join([str(v[c]) for c in columns] + [f"{float(p[k]):.6g}" for k in SUMMARY[kind]]))
+    Path(out_csv).write_text("\n".join(rows) + "\n")
+    summary_figure(ds, kind, name, columns, fig)
+    if metrics_path:
+        m = {k: {"min": float(np.nanmin(ds[k].values)), "max": float(np.nanmax(ds[k].values))} for k in SUMMARY[kind]}
+        m["points"] = len(values)
+        Path(metrics_path).write_text(json.dumps(m, indent=2))
+    return ds
+
+
+def _reduce(da, keep):
+    """Mean over every dimension not in ``keep``; returns the array and the names averaged over."""
+    over = [d for d in da.dims if d not in keep]
+    return (da.mean(over) if over else da), over
+
+
+def summary_figure(ds, kind, name, columns, path):
+    """Heat maps of the summary metrics over the two budget axes (NP x EG, particles x generations), one
+    column per value of the first other swept parameter (noise level, window, ...), averaged over the rest
+    (seeds); a line plot when fewer than two budget axes are swept."""
+    import matplotlib.pyplot as plt
+
+    from calib.figures import style as figures
+
+    if kind == "calibration":
+        y, x = "NP", "EG"
+        metrics = [("success_pct", "success [%]", "viridis", None),
+                   ("mean_L_over_L_star", "mean L / L*", "magma_r", "log")]
+    else:
+        y, x = "particles", "generations"
+        metrics = [("rms_optimizer_error_in_bounds", "rms (estimate − argmin J) / CRB", "magma_r", "log"),
+                   ("rms_error_in_bounds", "rms (estimate − truth) / CRB", "magma_r", "log")]
+    axes2 = [c for c in (y, x) if c in columns]
+    others = [c for c in columns if c not in axes2 and c != "seed"]
+    facet = others[0] if others else None
+    fvals = list(ds[facet].values) if facet else [None]
+    nrow, ncol = len(metrics), len(fvals)
+    fig, axs = plt.subplots(nrow, ncol, figsize=(3.4 * ncol + 1.0, 2.9 * nrow), squeeze=False, layout="constrained")
+    averaged = set()
+    from matplotlib.colors import LogNorm, Normalize
+
+    for i, (var, label, cmap, scale) in enumerate(metrics):
+        if len(axes2) == 2:  # one colour scale per metric, shared by the columns
+            red_all = [_reduce(ds[var] if fv is None else ds[var].sel({facet: fv}), axes2)[0].values for fv in fvals]
+            zs = np.concatenate([r.ravel() for r in red_all])
+            zs = zs[np.isfinite(zs)]
+            pos = zs[zs > 0]
+            if scale == "log" and pos.size and pos.min() < pos.max():
+                norm = LogNorm(vmin=pos.min(), vmax=pos.max())
+            elif zs.size and zs.min() < zs.max():
+                norm = Normalize(vmin=zs.min(), vmax=zs.max())
+            else:
+                norm = None
+        for j, fv in enumerate(fvals):
+            ax = axs[i, j]
+            da = ds[var] if fv is None else ds[var].sel({facet: fv})
+            if len(axes2) == 2:
+                red, over = _reduce(da, axes2)
+                averaged.update(over)
+                z = red.transpose(y, x).values
+                im = ax.imshow(z, origin="lower", aspect="auto", cmap=cmap, norm=norm)
+                ax.set_xticks(range(ds.sizes[x]), [str(v) for v in ds[x].values])
+                ax.set_yticks(range(ds.sizes[y]), [str(v) for v in ds[y].values])
+                for (r, c), val in np.ndenumerate(z):
+                    ax.text(c, r, f"{val:.3g}", ha="center", va="center", fontsize=7, color="w",
+                            bbox={"facecolor": "k", "alpha": 0.25, "pad": 0.5, "lw": 0})
+                ax.set_xlabel(x)
+                ax.set_ylabel(y)
+                if j == ncol - 1:
+                    fig.colorbar(im, ax=axs[i, :].tolist(), label=label, shrink=0.85)
+                ax.grid(False)
+            else:
+                lead = axes2[0] if axes2 else columns[0]
+                red, over = _reduce(da, [lead])
+                averaged.update(over)
+                ax.plot([str(v) for v in red[lead].values], red.values, "o-")
+                ax.set_xlabel(lead)
+                ax.set_ylabel(label)
+                if scale == "log":
+                    ax.set_yscale("log")
+            if fv is not None:
+                ax.set_title(f"{facet} = {fv}", fontsize=8)
+    note = f" (mean over {', '.join(sorted(averaged))})" if averaged else ""
+    fig.suptitle(f"sweep {name}{note}", fontsize=9)
+    figures.save(fig, path)
