@@ -1,4 +1,4 @@
-# calib: calibration of a strapdown INS (seed 000) and gyro-drift estimation (seed 001).
+# calib: calibration of a strapdown INS (Liu 2021) and gyro-drift estimation (He 2019).
 # Thin top level: configuration, validation, and the per-stage rule files.
 from snakemake.utils import min_version, validate
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark of the calibration library: timings and the seed 000 Table 2 / Table 5 style comparison.
+"""Benchmark of the calibration library: timings and the Liu 2021 Table 2 / Table 5 style comparison.
 
     python benchmarks/bench_calibration.py [--runs 30] [--scipy-runs 10] [--workers 2] [--budget 60 1200]
 
@@ -13,8 +13,8 @@ Prints
    run (its per-generation Python overhead), so it gets ``--scipy-runs`` runs (default 10) to keep the whole
    benchmark near 2 minutes on 2 cores; ``--scipy-runs 30`` gives the full set (~+2.5 min).
 
-Data: synthetic static means at seed 000's 24 attitudes and the 9 rotation pairs (10/20/30 deg/s about x, y, z)
-from seed 000's Table 1 / 3 parameters, white noise sigma = 0.5 count s-1 (accel means, ~36 micro-g) and
+Data: synthetic static means at Liu 2021's 24 attitudes and the 9 rotation pairs (10/20/30 deg/s about x, y, z)
+from Liu 2021's Table 1 / 3 parameters, white noise sigma = 0.5 count s-1 (accel means, ~36 micro-g) and
 80 count s-1 (gyro means, ~0.01 deg/h). Run r of problem p uses numpy.random.default_rng(seed + 1000 p + r).
 
 Success: the optimiser's result is statistically indistinguishable from the global optimum L* (the best of all
@@ -38,7 +38,7 @@ from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
 from calib.calibration import optimizers as opt
 from calib.signal import segments as sg
-from calib.core.triad import seed000_bounds, seed000_model
+from calib.core.triad import liu2021_bounds, liu2021_model
 
 METHODS = ["de_rand1", "de_current_to_best1", "de_integration", "ide", "ide_lsq", "ga", "pso", "scipy_de", "lsq"]
 PROBLEMS = ["accel_paper12", "accel_tri9", "gyro_lgm"]
@@ -49,10 +49,10 @@ _CACHE = {}
 def data():
     if "data" not in _CACHE:
         rng = np.random.default_rng(DATA_SEED)
-        acc = sg.synthetic_static(seed000_model("accel"), idf.seed000_attitudes(), 0.5, rng, sensor="accel")
-        gst = sg.synthetic_static(seed000_model("gyro"), idf.seed000_attitudes(), 80.0, rng, sensor="gyro")
-        axes, rates = idf.seed000_rotation_plan()
-        pairs = sg.synthetic_pairs(seed000_model("gyro"), axes, rates, 80.0, rng)
+        acc = sg.synthetic_static(liu2021_model("accel"), idf.liu2021_attitudes(), 0.5, rng, sensor="accel")
+        gst = sg.synthetic_static(liu2021_model("gyro"), idf.liu2021_attitudes(), 80.0, rng, sensor="gyro")
+        axes, rates = idf.liu2021_rotation_plan()
+        pairs = sg.synthetic_pairs(liu2021_model("gyro"), axes, rates, 80.0, rng)
         _CACHE["data"] = (acc, gst, pairs)
     return _CACHE["data"]
 
@@ -67,7 +67,7 @@ def problem(name):
         o = ob.NormObjective(acc.means, acc.reference, form=form, sigma=acc.sigma, name="L_a")
         out = (o, cal._default_bounds("accel", acc.output_unit, form, None), acc.n, 9)
     else:
-        lo, hi = seed000_bounds("gyro")
+        lo, hi = liu2021_bounds("gyro")
         d, s = pairs.difference()
         o = ob.LgmObjective(d, pairs.delta_input(), sigma_d=s, relative=True)
         out = (o, (lo[:9], hi[:9]), pairs.n, 3)

@@ -1,4 +1,4 @@
-"""Benchmark of calib.fieldcal.calibrate on the shared real recordings (issue 7 §3): per-log times and the acceptance
+"""Benchmark of calib.fieldcal.calibrate on the shared real recordings: per-log times and the acceptance
 metrics next to their targets (the peers' published numbers).
 
 Run: .venv/bin/python benchmarks/bench_fieldcal.py [--data ../shared/data]
@@ -55,7 +55,7 @@ def main(argv=None):
 
     print("imu_tk_xsens (g = 9.81744 m/s^2)")
     ds, t_imp = _import("imu_tk_xsens", data)
-    # the acceptance run is IMU-TK's own procedure; the fixed 10x threshold of the brief and the project's
+    # the acceptance run is IMU-TK's own procedure; the fixed 10x threshold and the project's
     # default detection are shown for comparison (info)
     for label, det, info in (("IMU-TK rule, k searched 2..10 (acceptance)", {"rule": "imu_tk"}, False),
                              ("IMU-TK rule, k = 10 fixed", {"rule": "imu_tk", "k": 10}, True),

@@ -1,6 +1,6 @@
-"""Calibration against known truth (seed 000 Tables 1 and 3 as the synthetic unit's parameters).
+"""Calibration against known truth (Liu 2021 Tables 1 and 3 as the synthetic unit's parameters).
 
-Static means come from the closed-form model N = K E x + b at seed 000's 24 attitudes (§2.2) plus Gaussian
+Static means come from the closed-form model N = K E x + b at Liu 2021's 24 attitudes (§2.2) plus Gaussian
 noise of known sigma; rotation pairs from the whole-revolution means of eqs. 23-24. The checks: separate LS
 and the identified norm form recover the truth within their standard errors, eq. 25 is exact on noise-free
 means, the ranks are 9 of 12 (paper's norm form) and 3 of 9 (L_gm), the z-scores over many noise seeds are
@@ -18,13 +18,13 @@ from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
 from calib.signal import segments as sg
 from calib.io.recording import make_dataset
-from calib.core.triad import seed000_model
+from calib.core.triad import liu2021_model
 from calib.core.rotations import axis_angle
 
-ACC = seed000_model("accel")
-GYR = seed000_model("gyro")
-ATT = idf.seed000_attitudes()
-AXES, RATES = idf.seed000_rotation_plan()
+ACC = liu2021_model("accel")
+GYR = liu2021_model("gyro")
+ATT = idf.liu2021_attitudes()
+AXES, RATES = idf.liu2021_rotation_plan()
 SIG_A = 0.5  # count s-1 per static mean (~36 micro-g)
 SIG_G = 80.0  # count s-1 (~0.01 deg/h)
 
@@ -48,7 +48,7 @@ def gyro_data(seed):
 # ---------------------------------------------------------------------------------------------------------
 # the 24-position path itself
 # ---------------------------------------------------------------------------------------------------------
-def test_seed000_attitudes_follow_section_2_2():
+def test_liu2021_attitudes_follow_section_2_2():
     north = np.array([0.0, 1.0, 0.0])
     for ph in range(3):
         for k in range(8):
@@ -167,7 +167,7 @@ def test_gyro_components_recover_truth_with_noise():
     assert r.rank == 12
     assert np.all(np.abs((r.x - GYR.to_vector()) / r.se) < 4.0)
     assert "both" in r.notes[0]
-    # the bias from the static norm with K E held (seed 000 §3.3) agrees within its standard error
+    # the bias from the static norm with K E held (Liu 2021 §3.3) agrees within its standard error
     rn = cal.gyro_components(pr, st, bias_from="norm", budget=(20, 60))
     assert np.all(np.abs((rn.b - GYR.b) / rn.se[9:]) < 4.0)
 

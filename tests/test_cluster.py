@@ -1,4 +1,4 @@
-"""Scale-out (issue 8 §5): the data and drift stages of the .test chain through the cluster-generic executor.
+"""Scale-out: the data and drift stages of the .test chain through the cluster-generic executor.
 
 Every job is submitted by workflow/profiles/cluster-generic/submit.sh, which starts it as its own detached
 process on this machine, and is followed by status.sh: a stage can only see what earlier stages wrote to
@@ -87,7 +87,7 @@ def test_data_and_drift_stages_through_cluster_executor(tmp_path):
         assert r.returncode == 0, (r.stdout + r.stderr)[-4000:]
         html = report.read_text()
         caption = (ROOT / "workflow" / "report" / "fig4_drift.rst").read_text().split(".")[0]
-        for needle in ("figure4_navigation.png", "table1_pso.csv", "figure2_estimates.png", "Gyro drift (seed 001)",
+        for needle in ("figure4_navigation.png", "table1_pso.csv", "figure2_estimates.png", "Gyro drift (He 2019)",
                        caption[:40]):
             assert needle in html, needle
     finally:

@@ -17,7 +17,7 @@ from calib.io import recording
 from calib.diagnosis import signatures as sg
 from calib.sim import simulator as simulate
 
-#: a short seed-000 session: 24 positions of 20 s, +-10/20/30 deg/s about x, y, z, one revolution each
+#: a short Liu 2021 session: 24 positions of 20 s, +-10/20/30 deg/s about x, y, z, one revolution each
 SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
 FAST = {"figures": False}
 
@@ -84,7 +84,7 @@ def test_geometry_whole_revolutions_and_noise_free_base_model(tmp_path):
     y, _ = sg.reduce_data(geom, ds)
     xr, ones = sg.reduced_inputs(geom)
     X = sg.base_design(geom, xr, ones)
-    a, g = simulate.sensor_models("seed000")
+    a, g = simulate.sensor_models("liu2021")
     theta = np.concatenate([a.KE.ravel(), a.b, g.KE.ravel(), g.b])
     res = y - X @ theta
     scale = np.abs(y).max()
@@ -186,7 +186,7 @@ def test_unreadable_file_is_inconclusive(tmp_path):
 
 
 def test_norm_model_without_attitudes_finds_quadratic(tmp_path):
-    """Drop the nominal attitudes: the accelerometer norm model (seed 000 eq. 7) still names the injected
+    """Drop the nominal attitudes: the accelerometer norm model (Liu 2021 eq. 7) still names the injected
     quadratic nonlinearity and brackets its magnitude."""
     cfg = {"accel_quadratic_nonlinearity": {"k2_ug_per_g2": [400.0, -300.0, 250.0]}}
     fs = dg.FastSession(_session(cfg), tmp_path)

@@ -1,4 +1,4 @@
-"""Gyro-drift estimation (seed 001): PSO, J, Ac, the noise limit and the baselines, against known truth."""
+"""Gyro-drift estimation (He 2019): PSO, J, Ac, the noise limit and the baselines, against known truth."""
 import math
 
 import numpy as np
@@ -14,7 +14,7 @@ TRUTH = np.array([-0.01, 0.01, 0.01])
 
 
 def test_accuracy_eq19():
-    """Ac = (1 - |(eta_e - eta_i)/eta_i|) x 100 % (seed 001 eq. 19): the paper's Table 1 means give its Ac."""
+    """Ac = (1 - |(eta_e - eta_i)/eta_i|) x 100 % (He 2019 eq. 19): the paper's Table 1 means give its Ac."""
     ac = pso.accuracy([-0.01038, 0.01073, 0.01046], TRUTH)
     assert ac == pytest.approx([96.2, 92.7, 95.4], abs=0.001)
 
@@ -52,7 +52,7 @@ def test_noise_limit_north_axis_equals_arw_over_sqrt_T():
 
 @pytest.fixture(scope="module")
 def quiet_window(tmp_path_factory):
-    """1 h of seed 001 stationary data with no noise: drift (-0.01, 0.01, 0.01) deg/h, accel bias 1e-3 m/s^2."""
+    """1 h of He 2019 stationary data with no noise: drift (-0.01, 0.01, 0.01) deg/h, accel bias 1e-3 m/s^2."""
     p = tmp_path_factory.mktemp("drift") / "w.nc"
     simulate.simulate_static_session({"mode": "physical", "duration_h": 1.0, "site": {"latitude_deg": 30.58},
                                       "gyro_noise": {"model": "arw", "arw_deg_rth": 0.0}}, 1, p)
@@ -72,7 +72,7 @@ def test_estimators_recover_the_drift_without_noise(quiet_window):
 
 
 def test_drift_only_J_is_biased_by_the_accelerometer_bias(quiet_window):
-    """Seed 001's J on a drift-only model: the unmodelled accelerometer bias moves its minimum away from the
+    """He et al. (2019)'s J on a drift-only model: the unmodelled accelerometer bias moves its minimum away from the
     truth, so J at the truth is larger than J at the drift-only least-squares solution."""
     e, _, _ = drift.linear_lsq(quiet_window, with_accel_bias=False)
     J = quiet_window(np.array([TRUTH, e]))

@@ -1,4 +1,4 @@
-"""Field calibration without a turntable (issue 7 §3): synthetic sessions with known parameters, closed
+"""Field calibration without a turntable: synthetic sessions with known parameters, closed
 forms, and the real recordings in ../shared/data against the numbers their tools' authors publish
 (IMU-TK's Xsens scale factors, imucal's Ferraris closed form, mikoff/imu-calib's static-norm RMS)."""
 from __future__ import annotations
@@ -345,7 +345,7 @@ def test_xsens_accel_reproduces_imu_tk(xsens):
     np.testing.assert_allclose(res.accel.scale_factors, IMU_TK_SCALES, rtol=5e-4)
     assert res.accel.scale_factor_units == "count per m s-2"
     assert res.accel.identifiability.rank == 9
-    # the fixed 10x threshold of the brief: same 38 intervals, scale factors still within 0.05 %
+    # the fixed 10x threshold: same 38 intervals, scale factors still within 0.05 %
     res10 = fieldcal.fieldcal_recording(xsens, {"gravity_m_s2": G_XSENS, "gyro": {"enabled": False},
                                                 "detection": {"rule": "imu_tk", "k": 10}})
     assert len(res10.intervals) == 38

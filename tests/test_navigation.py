@@ -24,7 +24,7 @@ from calib.io.recording import RecordingError
 from calib.nav.strapdown import NavInit
 from calib.core.rotations import axis_angle, dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
 
-LAT = math.radians(30.58)  # seed 001 IV.A
+LAT = math.radians(30.58)  # He 2019 IV.A
 H = 0.0
 ATT = (0.02, -0.01, 0.7)  # pitch, roll, yaw [rad]: a non-trivial attitude so C_b^n enters everywhere
 C0 = euler_to_dcm(*ATT)
@@ -511,14 +511,14 @@ def test_navigate_recording_physical_units_perfect_data_errors_at_rounding_level
 
 
 def test_navigate_recording_counts_with_triad_calibration_and_gyro_compensation(tmp_path):
-    """Counts (increment counts per sample, float) made with the seed-000 models N = K E x + b: a
+    """Counts (increment counts per sample, float) made with the Liu 2021 models N = K E x + b: a
     TriadCalibration of the same models recovers the physical increments (errors at rounding level); a 0.02
     deg/h drift added to the truth and compensated per stream gives stream 1 == perfect to 1e-9 rad."""
     n = 60_000
     dt = 1.0 / FS
     w_b, f_b = stationary_rates()
     drift = np.array([0.02, -0.01, 0.015]) * DEG_H
-    am, gm = sensors.seed000_model("accel"), sensors.seed000_model("gyro")
+    am, gm = sensors.liu2021_model("accel"), sensors.liu2021_model("gyro")
     acc_counts = am.forward(f_b / recording.STANDARD_GRAVITY)[None, :].repeat(n, 0) * dt
     gyr_counts = gm.forward((w_b + drift) / DEG_H)[None, :].repeat(n, 0) * dt
     path = _write(tmp_path, "counts.nc", acc_counts, gyr_counts, "count", "count", attrs=ATT_ATTRS)
@@ -543,7 +543,7 @@ def test_navigate_recording_bad_inputs_raise_clear_errors(tmp_path):
     with pytest.raises(RecordingError, match="latitude_deg"):
         navigation.navigate_recording(p)
     p = _write(tmp_path, "ok.nc", acc, gyr, "m s-1", "rad", attrs=ATT_ATTRS)
-    cal = navigation.TriadCalibration(sensors.seed000_model("accel"), sensors.seed000_model("gyro"))
+    cal = navigation.TriadCalibration(sensors.liu2021_model("accel"), sensors.liu2021_model("gyro"))
     with pytest.raises(RecordingError, match="physical but a count calibration"):
         navigation.navigate_recording(p, calibration=cal)
     with pytest.raises(ValueError, match="does not divide"):

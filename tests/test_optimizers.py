@@ -1,4 +1,4 @@
-"""Optimisers: the IDE equations (seed 000 eqs. 11-18) in closed form, the population kernels, determinism,
+"""Optimisers: the IDE equations (Liu 2021 eqs. 11-18) in closed form, the population kernels, determinism,
 budgets, bounds, and the ranking IDE < integration strategy < DE/rand/1 on the accelerometer norm (eq. 7)."""
 import numpy as np
 import pytest
@@ -7,15 +7,15 @@ from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
 from calib.calibration import optimizers as opt
 from calib.signal import segments as sg
-from calib.core.triad import seed000_bounds, seed000_model
+from calib.core.triad import liu2021_bounds, liu2021_model
 
 
 @pytest.fixture(scope="module")
 def accel_problem():
-    """Accelerometer static means at seed 000's 24 attitudes (closed form + noise of known sigma)."""
-    model = seed000_model("accel")
-    st = sg.synthetic_static(model, idf.seed000_attitudes(), 0.5, np.random.default_rng(3), sensor="accel")
-    lo, hi = seed000_bounds("accel")
+    """Accelerometer static means at Liu 2021's 24 attitudes (closed form + noise of known sigma)."""
+    model = liu2021_model("accel")
+    st = sg.synthetic_static(model, idf.liu2021_attitudes(), 0.5, np.random.default_rng(3), sensor="accel")
+    lo, hi = liu2021_bounds("accel")
     idx = idf.form_indices("tri9")
     obj = ob.NormObjective(st.means, st.reference, form="tri9", sigma=st.sigma)
     L, _ = ob.lower_triangular_gauge(model.KE)
@@ -99,8 +99,8 @@ def test_kernel_matches_numpy_reference(accel_problem):
 
 @pytest.mark.parametrize("form", ["paper12", "tri9", "bias3"])
 def test_norm_jacobian_matches_finite_differences(form):
-    model = seed000_model("gyro")
-    st = sg.synthetic_static(model, idf.seed000_attitudes(), 80.0, np.random.default_rng(5), sensor="gyro")
+    model = liu2021_model("gyro")
+    st = sg.synthetic_static(model, idf.liu2021_attitudes(), 80.0, np.random.default_rng(5), sensor="gyro")
     f = ob.Form(form, KE=model.KE)
     o = ob.NormObjective(st.means, st.reference, form=f)
     th = f.from_KE_b(ob.lower_triangular_gauge(model.KE)[0] if form == "tri9" else model.KE, model.b)
@@ -113,8 +113,8 @@ def test_norm_jacobian_matches_finite_differences(form):
 
 
 def test_lgm_jacobian_and_kernel():
-    model = seed000_model("gyro")
-    axes, rates = idf.seed000_rotation_plan()
+    model = liu2021_model("gyro")
+    axes, rates = idf.liu2021_rotation_plan()
     pr = sg.synthetic_pairs(model, axes, rates, 80.0, np.random.default_rng(6))
     d, s = pr.difference()
     for rel in (True, False):
@@ -146,7 +146,7 @@ def test_population_methods_budget_determinism_history(method, accel_problem):
 
 
 def test_ide_beats_integration_beats_rand1(accel_problem):
-    """Seed 000 Table 2 ordering of the mean final L_a, with a reduced budget (NP 60, EG 300)."""
+    """Liu et al. (2021) Table 2 ordering of the mean final L_a, with a reduced budget (NP 60, EG 300)."""
     obj, bounds, best = accel_problem
     mean = {}
     for m in ("de_rand1", "de_integration", "ide"):

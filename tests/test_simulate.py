@@ -1,6 +1,6 @@
 """Synthetic-data stage: path plan, exact kinematics, pulse-count output, effects, long static sessions.
 
-Every expected value is a closed form of the truth (seed 000 eqs. 1-4 and 21, WGS-84 normal gravity and
+Every expected value is a closed form of the truth (Liu 2021 eqs. 1-4 and 21, WGS-84 normal gravity and
 Earth rate, the effect formulas of calib.sim.effects), never a number captured from the simulator.
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from calib.io import recording
 from calib.sim import simulator as simulate
 from calib.sim import trajectory
 from calib.io.recording import STANDARD_GRAVITY
-from calib.core.triad import seed000_model
+from calib.core.triad import liu2021_model
 from calib.core.rotations import dcm_to_rotvec, euler_to_dcm, rot_x, rot_y, rot_z, rotvec_to_dcm
 
 LAT, H = 30.58, 0.0
@@ -37,11 +37,11 @@ QUIET = {"accel_vrw_ug_rthz": 0.0, "accel_bias_instability_ug": 0.0, "gyro_arw_d
 TINY = {"site": SITE, "dwell_s": 2.0, "positions_per_phase": 2, "step_deg": 90.0, "rotation_rates_deg_s": [30.0],
         "revolutions": 1, "sample_rate_hz": FS, "noise": {**QUIET, "quantize": False}}
 
-ACC, GYR = seed000_model("accel"), seed000_model("gyro")
+ACC, GYR = liu2021_model("accel"), liu2021_model("gyro")
 
 
 def true_rates(cbn, acc=ACC, gyr=GYR, lat=LAT, gamma=GAMMA):
-    """Closed-form static output K E x + b [count s-1] at attitude C_b^n (seed 000 eqs. 1, 3)."""
+    """Closed-form static output K E x + b [count s-1] at attitude C_b^n (Liu 2021 eqs. 1, 3)."""
     f_g = cbn.T @ np.array([0.0, 0.0, gamma]) / STANDARD_GRAVITY
     w_dh = cbn.T @ earth.earth_rate_enu(math.radians(lat)) / earth.DEG_PER_H
     return acc.KE @ f_g + acc.b, gyr.KE @ w_dh + gyr.b
@@ -73,7 +73,7 @@ def quiet(tmp_path_factory):
 
 # ---- plan -----------------------------------------------------------------------------------------
 
-def test_plan_is_the_seed000_path():
+def test_plan_is_the_liu2021_path():
     plan = trajectory.calibration_plan(time_grid_s=DT)
     segs = trajectory.recorded_segments(plan)
     labels = [s.label for s in segs]
@@ -96,7 +96,7 @@ def test_plan_is_the_seed000_path():
         ax = "xyz".index(s.label[4])
         np.testing.assert_allclose(s.cbn_start[:, ax], UP, atol=1e-13)  # rotation axis held vertical
         if s.label.startswith("ROT-z"):
-            np.testing.assert_allclose(s.cbn_start, np.eye(3), atol=1e-13)  # seed 000 eq. 21 start
+            np.testing.assert_allclose(s.cbn_start, np.eye(3), atol=1e-13)  # Liu 2021 eq. 21 start
         rate = float(s.label[5:])
         assert s.rate_deg_s == rate
         assert s.duration_s == pytest.approx(2 * 360.0 / abs(rate))
@@ -143,7 +143,7 @@ def test_kinematics_norms_and_eq21():
             om, L = earth.OMEGA_IE, math.radians(LAT)
             expect = np.stack([sn * om * math.cos(L),
                                c * om * math.cos(L), np.full_like(tau, w + om * math.sin(L))], axis=1)
-            np.testing.assert_allclose(k.w_ib_b, expect, atol=1e-15)  # seed 000 eq. (21)
+            np.testing.assert_allclose(k.w_ib_b, expect, atol=1e-15)  # Liu 2021 eq. (21)
             np.testing.assert_allclose(k.table_angle_deg, s.rate_deg_s * tau, atol=1e-9)
 
 
@@ -155,7 +155,7 @@ def test_recording_layout(noisy):
     for v in ("accel", "gyro"):
         assert ds[v].attrs["sample_kind"] == "increment" and ds[v].attrs["units"] == "count"
     assert ds.attrs["latitude_deg"] == LAT and ds.attrs["source"] == "synthetic"
-    assert ds.attrs["sensor"] == "seed000 synthetic nav-grade unit"
+    assert ds.attrs["sensor"] == "liu2021 synthetic nav-grade unit"
     assert ds.attrs["accel_input_unit"] == "g" and ds.attrs["gyro_input_unit"] == "deg h-1"
     assert set(ds["segment_kind"].values) == {"static", "rotation"}
     assert (ds["segment_index"].values == -1).any()
@@ -298,7 +298,7 @@ def test_sensor_override():
     sim = simulate.build_calibration_simulator(
         {**TINY, "sensor": {"accel": {"K": [1e4, 1e4, 1e4], "b": [0, 0, 0]}, "gyro": {"E": [0.0] * 6}}}, 1)
     np.testing.assert_array_equal(sim.accel.K, [1e4, 1e4, 1e4])
-    np.testing.assert_array_equal(sim.accel.E, ACC.E)  # untouched parts keep the seed-000 truth
+    np.testing.assert_array_equal(sim.accel.E, ACC.E)  # untouched parts keep the Liu 2021 truth
     np.testing.assert_array_equal(sim.gyro.E, np.eye(3))
 
 

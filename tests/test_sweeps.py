@@ -1,4 +1,4 @@
-"""Parameter sweeps (issue 8 §3): sweep files, Paramspace points, the point functions, the gather, the rules."""
+"""Parameter sweeps: sweep files, Paramspace points, the point functions, the gather, the rules."""
 import json
 import os
 import subprocess

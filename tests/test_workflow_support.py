@@ -1,4 +1,4 @@
-"""Determinism, tracking and config validation (issue 8 §1, §4; issue 2 §2 config errors)."""
+"""Determinism, tracking and config validation, including config errors."""
 import hashlib
 import json
 import math

@@ -131,7 +131,7 @@ def main(argv=None):
     s = sub.add_parser("validate", help="check a calib-recording-1 file")
     s.add_argument("recording")
     s.set_defaults(fn=cmd_validate)
-    s = sub.add_parser("calibrate", help="seed 000 calibration study on a session with a segment table")
+    s = sub.add_parser("calibrate", help="Liu 2021 calibration study on a session with a segment table")
     s.add_argument("recording")
     s.add_argument("--out", required=True)
     s.add_argument("--truth")

@@ -1,4 +1,4 @@
-# Calibration stage (seed 000): noise, repeated identifications per method, Tables 2, 4, 5, Figures 2-6 and 8,
+# Calibration stage (Liu 2021): noise, repeated identifications per method, Tables 2, 4, 5, Figures 2-6 and 8,
 # identifiability, and the default calibration used by the navigation stage.
 
 
@@ -8,14 +8,14 @@ rule calibrate:
         recording=f"{R}/data/calibration_session.nc",
         truth=f"{R}/truth/calibration_session.truth.json",
     output:
-        table2=report(f"{R}/calibration/tables/table2_de_variants.csv", category="2 Calibration (seed 000)", caption="../report/table2.rst"),
-        table4=report(f"{R}/calibration/tables/table4_gyro_paths.csv", category="2 Calibration (seed 000)", caption="../report/table4.rst"),
-        table5=report(f"{R}/calibration/tables/table5_methods.csv", category="2 Calibration (seed 000)", caption="../report/table5.rst"),
+        table2=report(f"{R}/calibration/tables/table2_de_variants.csv", category="2 Calibration (Liu 2021)", caption="../report/table2.rst"),
+        table4=report(f"{R}/calibration/tables/table4_gyro_paths.csv", category="2 Calibration (Liu 2021)", caption="../report/table4.rst"),
+        table5=report(f"{R}/calibration/tables/table5_methods.csv", category="2 Calibration (Liu 2021)", caption="../report/table5.rst"),
         ident=f"{R}/calibration/identifiability.json",
         default=f"{R}/calibration/default_calibration.nc",
         default_json=f"{R}/calibration/default_calibration.json",
         noise=f"{R}/calibration/noise.nc",
-        figs=report(directory(f"{R}/calibration/figures"), patterns=["{name}.png"], category="2 Calibration (seed 000)", caption="../report/calibration_figures.rst"),
+        figs=report(directory(f"{R}/calibration/figures"), patterns=["{name}.png"], category="2 Calibration (Liu 2021)", caption="../report/calibration_figures.rst"),
         runs=directory(f"{R}/calibration/runs"),
         timings=f"{R}/calibration/timings.csv",
         metrics=f"{R}/calibration/calibration.metrics.json",
@@ -39,8 +39,8 @@ rule calibration_z:
     input:
         unpack(z_noise_record_input),
     output:
-        table=report(f"{R}/calibration/zscores.csv", category="2 Calibration (seed 000)", caption="../report/zscores.rst"),
-        fig=report(f"{R}/calibration/zscores.png", category="2 Calibration (seed 000)", caption="../report/zscores.rst"),
+        table=report(f"{R}/calibration/zscores.csv", category="2 Calibration (Liu 2021)", caption="../report/zscores.rst"),
+        fig=report(f"{R}/calibration/zscores.png", category="2 Calibration (Liu 2021)", caption="../report/zscores.rst"),
         metrics=f"{R}/calibration/zscores.metrics.json",
     params:
         session=sub("calibration_session"),

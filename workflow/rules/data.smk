@@ -1,4 +1,4 @@
-# Data stage: synthetic sessions (seed 000 calibration path, static check, seed 001 stationary data).
+# Data stage: synthetic sessions (Liu 2021 calibration path, static check, He 2019 stationary data).
 
 
 rule simulate_calibration_session:

@@ -1,4 +1,4 @@
-# Gyro-drift estimation of seed 001: 50 PSOBE tests with the noise limit and baselines, then 240 h validation.
+# Gyro-drift estimation of He 2019: 50 PSOBE tests with the noise limit and baselines, then 240 h validation.
 
 
 rule drift_pso:
@@ -6,11 +6,11 @@ rule drift_pso:
         recording=f"{R}/data/navigation_session.nc",
     output:
         tests=f"{R}/drift/pso_tests.nc",
-        table=report(f"{R}/drift/table1_pso.csv", category="4 Gyro drift (seed 001)", caption="../report/table1_pso.rst"),
-        baselines=report(f"{R}/drift/baselines.csv", category="4 Gyro drift (seed 001)", caption="../report/baselines.rst"),
+        table=report(f"{R}/drift/table1_pso.csv", category="4 Gyro drift (He 2019)", caption="../report/table1_pso.rst"),
+        baselines=report(f"{R}/drift/baselines.csv", category="4 Gyro drift (He 2019)", caption="../report/baselines.rst"),
         timings=f"{R}/drift/timings.csv",
-        fig2=report(f"{R}/drift/figure2_estimates.png", category="4 Gyro drift (seed 001)", caption="../report/fig2_drift.rst"),
-        fig3=report(f"{R}/drift/figure3_fitness.png", category="4 Gyro drift (seed 001)", caption="../report/fig3_drift.rst"),
+        fig2=report(f"{R}/drift/figure2_estimates.png", category="4 Gyro drift (He 2019)", caption="../report/fig2_drift.rst"),
+        fig3=report(f"{R}/drift/figure3_fitness.png", category="4 Gyro drift (He 2019)", caption="../report/fig3_drift.rst"),
         metrics=f"{R}/drift/pso.metrics.json",
     params:
         session=sub("navigation_session"),
@@ -35,7 +35,7 @@ rule drift_validation:
         tests=f"{R}/drift/pso_tests.nc",
     output:
         nav=f"{R}/drift/validation_240h.nc",
-        fig4=report(f"{R}/drift/figure4_navigation.png", category="4 Gyro drift (seed 001)", caption="../report/fig4_drift.rst"),
+        fig4=report(f"{R}/drift/figure4_navigation.png", category="4 Gyro drift (He 2019)", caption="../report/fig4_drift.rst"),
         metrics=f"{R}/drift/validation.metrics.json",
     params:
         session=sub("navigation_session"),
@@ -56,8 +56,8 @@ rule drift_validation:
 rule drift_noise_seeds:
     output:
         nc=f"{R}/drift/noise_seeds.nc",
-        table=report(f"{R}/drift/noise_seeds.csv", category="4 Gyro drift (seed 001)", caption="../report/noise_seeds.rst"),
-        fig=report(f"{R}/drift/noise_seeds_z.png", category="4 Gyro drift (seed 001)", caption="../report/noise_seeds.rst"),
+        table=report(f"{R}/drift/noise_seeds.csv", category="4 Gyro drift (He 2019)", caption="../report/noise_seeds.rst"),
+        fig=report(f"{R}/drift/noise_seeds_z.png", category="4 Gyro drift (He 2019)", caption="../report/noise_seeds.rst"),
         metrics=f"{R}/drift/noise_seeds.metrics.json",
     params:
         session=sub("navigation_session"),

@@ -1,4 +1,4 @@
-# Navigation stage: seed 000's static-navigation check (Figure 10) with each method's calibration.
+# Navigation stage: Liu 2021's static-navigation check (Figure 10) with each method's calibration.
 
 
 rule static_check:

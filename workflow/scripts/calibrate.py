@@ -1,4 +1,4 @@
-"""Rule calibrate: the seed-000 calibration study on the session."""
+"""Rule calibrate: the Liu 2021 calibration study on the session."""
 from calib.studies import calibration as calibration_study
 from calib.core import progress as runlog
 from calib.io.netcdf import provenance

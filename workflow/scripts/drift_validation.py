@@ -1,4 +1,4 @@
-"""Rule drift_validation: 240 h navigation with and without compensation (seed 001 Figure 4)."""
+"""Rule drift_validation: 240 h navigation with and without compensation (He 2019 Figure 4)."""
 import numba
 
 from calib.studies import drift as drift_study

@@ -1,4 +1,4 @@
-"""Rule simulate_calibration_session: the seed-000 calibration path as a calib-recording-1 file."""
+"""Rule simulate_calibration_session: the Liu 2021 calibration path as a calib-recording-1 file."""
 from calib.core import progress as runlog
 from calib.studies import stages
 

@@ -1,4 +1,4 @@
-"""Rule simulate_navigation_session: seed 001 §IV.A stationary data, written in chunks."""
+"""Rule simulate_navigation_session: He 2019 §IV.A stationary data, written in chunks."""
 from calib.core import progress as runlog
 from calib.studies import stages
 

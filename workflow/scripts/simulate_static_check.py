@@ -1,4 +1,4 @@
-"""Rule simulate_static_check: a static recording of the same simulated unit (seed 000 §4, Figure 10)."""
+"""Rule simulate_static_check: a static recording of the same simulated unit (Liu 2021 §4, Figure 10)."""
 from calib.core import progress as runlog
 from calib.studies import stages
 

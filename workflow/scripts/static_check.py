@@ -1,4 +1,4 @@
-"""Rule static_check: seed 000 Figure 10, static navigation with each method's calibration."""
+"""Rule static_check: Liu 2021 Figure 10, static navigation with each method's calibration."""
 import numba
 
 from calib.studies import navigation as navigation_study

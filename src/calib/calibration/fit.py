@@ -1,6 +1,6 @@
-"""Calibration of an accelerometer or gyro triad from segment means (seed 000), with standard errors.
+"""Calibration of an accelerometer or gyro triad from segment means (Liu 2021), with standard errors.
 
-Model (seed 000 eqs. 1-4): ``N = K E x + b``; N rate reading [output unit; count s-1 for the synthetic unit:
+Model (Liu 2021 eqs. 1-4): ``N = K E x + b``; N rate reading [output unit; count s-1 for the synthetic unit:
 counts per sample / dt], x input in the body frame [input unit: g for accelerometers, deg/h for gyros].
 Applying a result to raw output: ``N = counts / dt`` (increment channels) or the sample itself (rate
 channels), then ``x = (K E)^-1 (N - b)`` (:meth:`CalibrationResult.apply`).
@@ -12,7 +12,7 @@ Accelerometer
 * :func:`separate_accel` — classical (separate) calibration, the gold-standard baseline: vector observations
   ``N_m = K E f_m + b`` with ``f_m = C_n^b (0, 0, g)`` from the nominal attitudes of the segment table;
   linear least squares for the 12 parameters. Frame: the body frame as realised by the table attitudes.
-* :func:`norm_calibration` (``form='tri9'``, default for main results) — seed 000 eq. 7 minimised by IDE
+* :func:`norm_calibration` (``form='tri9'``, default for main results) — Liu 2021 eq. 7 minimised by IDE
   (eq. 18) + least-squares polish, in the lower-triangular parameterisation that the norm *does* identify
   (rank 9 of 9): ``Exy = Exz = Eyz = 0``. Frame: the *triad frame* (x along the x sensor's sensitive axis, y
   in the plane of the x and y sensitive axes); it differs from the body frame by a small rotation the norm
@@ -25,15 +25,15 @@ Accelerometer
 
 Gyro
 
-* :func:`gyro_components` (default) — component form of seed 000 eq. 25: ``(N+ - N-) / (2 omega) = K E a``
+* :func:`gyro_components` (default) — component form of Liu 2021 eq. 25: ``(N+ - N-) / (2 omega) = K E a``
   (a column of K E per rotation axis; linear, rank 9 with rotations about three axes), then the biases from
   the pair means ``(N+ + N-)/2`` and/or the static positions with the known Earth-rate input
   (``bias_from='both'|'pairs'|'static'``), or from the static norm with K E held (``'norm'``, §3.3).
 * :func:`separate_gyro` — classical joint linear least squares on all static and rotation means with their
   known inputs (table rate + Earth rate).
-* :func:`norm_calibration` on gyro static means — L_g of eq. 7 (seed 000 §3.2): Earth rate is the only
+* :func:`norm_calibration` on gyro static means — L_g of eq. 7 (Liu 2021 §3.2): Earth rate is the only
   input, so the signal is ~15 deg/h against the noise; the paper reports that this fails.
-* :func:`gyro_dynamic` — seed 000 §3.3: L_gm of eq. 26 by IDE (+ polish) for K and E, then the biases from
+* :func:`gyro_dynamic` — Liu 2021 §3.3: L_gm of eq. 26 by IDE (+ polish) for K and E, then the biases from
   the static norm (eq. 7) with K and E held. L_gm constrains only the three column norms of K E (Jacobian
   rank 3 of 9), so the six installation errors it returns are arbitrary within the bounds; this is reported.
 
@@ -55,9 +55,9 @@ from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
 from calib.calibration import optimizers as opt
 from calib.signal.segments import RotationMeans, RotationPairs, SegmentError, StaticMeans, require_positions
-from calib.core.triad import PARAM_NAMES, TriadModel, seed000_bounds
+from calib.core.triad import PARAM_NAMES, TriadModel, liu2021_bounds
 
-FRAME_BODY = "body frame (as realised by the nominal table attitudes; seed 000: right-front-up)"
+FRAME_BODY = "body frame (as realised by the nominal table attitudes; Liu 2021: right-front-up)"
 FRAME_TRIAD = ("triad frame: x along the x sensor's sensitive axis, y in the plane of the x and y sensitive "
                "axes, z completing a right-handed orthonormal frame; it differs from the body frame by a small "
                "rotation that the norm cannot observe")
@@ -111,7 +111,7 @@ class CalibrationResult:
         return self.chi2 / self.dof if self.dof > 0 else math.nan
 
     def paper_vector(self) -> np.ndarray:
-        """[Kx Ky Kz Exy Exz Eyx Eyz Ezx Ezy bx by bz] (seed 000 eq. 8) of the model as identified (in its frame)."""
+        """[Kx Ky Kz Exy Exz Eyx Eyz Ezx Ezy bx by bz] (Liu 2021 eq. 8) of the model as identified (in its frame)."""
         return ob.paper_vector(self.KE, self.b)
 
     def paper_form(self, reference=None):
@@ -226,9 +226,9 @@ def _default_bounds(sensor, output_unit, form_name, bounds):
             raise ValueError(f"bounds have {lo.size} components, form {form_name!r} has {n} (or give all 12)")
         return lo, hi
     if not str(output_unit).startswith("count"):
-        raise ValueError(f"{sensor}: output in {output_unit!r}: the default search bounds (seed 000 Tables 1/3) "
+        raise ValueError(f"{sensor}: output in {output_unit!r}: the default search bounds (Liu 2021 Tables 1/3) "
                          "are for the synthetic unit's count outputs; give bounds=(lower, upper) for this sensor")
-    lo, hi = seed000_bounds(sensor)
+    lo, hi = liu2021_bounds(sensor)
     idx = idf.form_indices(form_name)
     lo, hi = lo[idx].copy(), hi[idx].copy()
     if form_name == "tri9":
@@ -317,16 +317,16 @@ def _linear_result(sensor, method, M, b, cov_lin, chi2, dof, static, notes, fram
 
 
 # ---------------------------------------------------------------------------------------------------------
-# norm calibration (seed 000 eq. 7)
+# norm calibration (Liu 2021 eq. 7)
 # ---------------------------------------------------------------------------------------------------------
 def norm_calibration(static: StaticMeans, *, form: str = "tri9", method: str = "ide_lsq", rng=None, seed: int = 0,
                      budget=(60, 1200), bounds=None, weighted: bool = False, KE=None, cov_means=None,
                      **opts) -> CalibrationResult:
-    """Norm-observed calibration of one triad from its static means: minimise L_a / L_g (seed 000 eq. 7).
+    """Norm-observed calibration of one triad from its static means: minimise L_a / L_g (Liu 2021 eq. 7).
 
     form: 'tri9' (default; identified, rank 9), 'paper12' (the paper's form, rank 9 of 12), 'bias3' (biases
-    only, ``KE`` held; seed 000 §3.3). method: any of :data:`optimizers.METHODS` (default IDE + polish).
-    ``bounds``: (lower, upper) for the form's parameters or all 12 (default seed 000 Table 1 / 3, count data
+    only, ``KE`` held; Liu 2021 §3.3). method: any of :data:`optimizers.METHODS` (default IDE + polish).
+    ``bounds``: (lower, upper) for the form's parameters or all 12 (default Liu 2021 Table 1 / 3, count data
     only; for tri9 the installation-error range is doubled, since the gauge folds the triad's rotation into
     Eyx, Ezx, Ezy). ``rng`` (or ``seed``) drives the optimiser. ``weighted``: after the optimiser, re-polish with the
     residuals divided by their sigma (the BLUE-like variant; eq. 7 itself is unweighted).
@@ -483,13 +483,13 @@ def _eq25_covariance(pairs, static, w, bias_from, cov_obs=None):
 
 def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, bias_from: str = "auto",
                     rng=None, seed: int = 0, budget=(60, 200), bounds=None, cov_obs=None) -> CalibrationResult:
-    """Gyro calibration by the component form of seed 000 eq. 25 (default gyro method).
+    """Gyro calibration by the component form of Liu 2021 eq. 25 (default gyro method).
 
     K E from the pair differences: (N+_j - N-_j) = K E (r+_j - r-_j) a_j (linear least squares per output
     row; for a pair about body axis k this is eq. 25: (N+ - N-)/(2 omega) = column k of K E). Biases
     (``bias_from``): 'pairs' = (N+ + N-)/2 - K E (mean input of the pair: Earth rate along the axis);
     'static' = N_m - K E C_n^b omega_ie^n at the static positions; 'both'; 'norm' = static norm (eq. 7) with
-    K E held, seed 000 §3.3 (needs no attitudes); 'auto' = 'both' if attitudes are known, else 'norm'.
+    K E held, Liu 2021 §3.3 (needs no attitudes); 'auto' = 'both' if attitudes are known, else 'norm'.
     Covariance: the estimator is linear in the means, propagated exactly (norm: linearised). ``cov_obs``
     (3, n, n): full covariance per axis of the means ordered [plus (J), minus (J), static (M)] [output unit^2]
     (``calib.signal.noisecov.eq25_cov``; correlated bias instability); not for ``bias_from='norm'``.
@@ -551,7 +551,7 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
 
 def gyro_dynamic(pairs: RotationPairs, static: StaticMeans, *, method: str = "ide_lsq", rng=None, seed: int = 0,
                  budget=(60, 1200), bounds=None, relative: bool = True, **opts) -> CalibrationResult:
-    """Seed 000 §3.3: K and E by minimising L_gm (eq. 26) on the rotation pairs, then the biases by
+    """Liu et al. (2021) §3.3: K and E by minimising L_gm (eq. 26) on the rotation pairs, then the biases by
     minimising L_g (eq. 7) on the static means with K and E held.
 
     L_gm only constrains the column norms of K E (rank 3 of 9): the installation errors come out

@@ -2,7 +2,7 @@
 
 At a solution theta, the residual Jacobian J (n_obs x p) tells which parameter directions change the
 residuals to first order. Columns are scaled by a typical size of each parameter (default: the width of
-its search bounds, seed 000 Tables 1 and 3), J_s = J diag(s), and
+its search bounds, Liu 2021 Tables 1 and 3), J_s = J diag(s), and
 
     J_s = U S V^T;   numerical rank = #{S_k > rtol * S_1};   null space = columns of V beyond the rank.
 
@@ -11,11 +11,11 @@ leaves every residual unchanged: those combinations are not determined by the da
 
 Known null spaces, named here in parameter terms:
 
-* Norm objectives (seed 000 eq. 7), paper form of 12 parameters: ``|(K E)^-1 (N - b)|`` is invariant under
+* Norm objectives (Liu 2021 eq. 7), paper form of 12 parameters: ``|(K E)^-1 (N - b)|`` is invariant under
   K E -> K E R for a rotation R (rotating the whole triad in the body frame); the three infinitesimal
   rotations about body x, y, z are null directions -> rank 9 of 12 on the 24-position path.
   (About z, to first order: delta Exy = -phi, delta Eyx = +phi: only Exy + Eyx is determined.)
-* L_gm (seed 000 eq. 26) with rotations about the three body axes: only |K E a_j|^2 enters, i.e. the three
+* L_gm (Liu 2021 eq. 26) with rotations about the three body axes: only |K E a_j|^2 enters, i.e. the three
   column norms of K E -> rank 3 of the 9 K/E parameters; the six installation errors are undetermined.
   Rotations about axes between the body axes add the angles between columns ((K E)^T (K E) off-diagonal,
   rank 6); K E -> R K E (a rotation of the output triad) is never determined by eq. 26.
@@ -32,7 +32,7 @@ import numpy as np
 
 from calib.core import earth
 from calib.calibration import objectives as ob
-from calib.core.triad import seed000_bounds, seed000_model
+from calib.core.triad import liu2021_bounds, liu2021_model
 
 AXIS_NAMES = ("x", "y", "z")
 
@@ -192,8 +192,8 @@ def analyze_objective(objective, theta, scale=None, *, rtol=1e-8, label="") -> I
 
 
 def default_scale(sensor: str, form_name: str):
-    """Bound widths of seed 000 Table 1 (accel) / 3 (gyro) for the parameters of ``form_name``."""
-    lo, hi = seed000_bounds(sensor)
+    """Bound widths of Liu 2021 Table 1 (accel) / 3 (gyro) for the parameters of ``form_name``."""
+    lo, hi = liu2021_bounds(sensor)
     return (hi - lo)[form_indices(form_name)]
 
 
@@ -206,8 +206,8 @@ def form_indices(form_name: str):
 # ---------------------------------------------------------------------------------------------------------
 # planned paths
 # ---------------------------------------------------------------------------------------------------------
-def seed000_attitudes():
-    """The 24 nominal attitudes C_b^n (body right-front-up -> ENU) of seed 000 §2.2, Figure 1.
+def liu2021_attitudes():
+    """The 24 nominal attitudes C_b^n (body right-front-up -> ENU) of Liu 2021 §2.2, Figure 1.
 
     Phase k (k = x, y, z) points body axis k north and turns it in 45 deg steps about that axis. Start
     attitudes: phase 1 x north, z up (y west); phase 2 y north, z up (x east); phase 3 z north, x up (y east).
@@ -229,8 +229,8 @@ def seed000_attitudes():
     return np.array(out)
 
 
-def seed000_rotation_plan(rates_deg_s=(10.0, 20.0, 30.0)):
-    """Seed 000 §3.3 / Figure 7: + and - rotations about body x, y, z at 10, 20, 30 deg/s -> (axes (J,3),
+def liu2021_rotation_plan(rates_deg_s=(10.0, 20.0, 30.0)):
+    """Liu et al. (2021) §3.3 / Figure 7: + and - rotations about body x, y, z at 10, 20, 30 deg/s -> (axes (J,3),
     rates (J,)) of the J = 9 pairs (rate = |rate| of the + rotation)."""
     axes, rates = [], []
     for k in range(3):
@@ -289,15 +289,15 @@ def check_plan(sensor: str = "accel", form: str = "paper12", *, attitudes=None, 
     ``form``: 'paper12' | 'tri9' (norm eq. 7 on the static attitudes), 'vector' (classical calibration with
     the attitudes known: linear, 12 parameters), 'lgm' (eq. 26 on the rotation pairs, 9 K/E parameters),
     'eq25' (component form of eq. 25, 9 K/E parameters). ``attitudes`` (M, 3, 3) C_b^n of the static
-    positions (default: seed 000's 24); ``rotation_axes`` (J, 3) body axes and ``rotation_rates`` (J,) deg/s
-    of the + rotations (default: seed 000's 9 pairs). Noise-free observations come from ``model``
-    (default: seed 000's 'separate calibration results' of Table 1 / 3).
+    positions (default: Liu 2021's 24); ``rotation_axes`` (J, 3) body axes and ``rotation_rates`` (J,) deg/s
+    of the + rotations (default: Liu 2021's 9 pairs). Noise-free observations come from ``model``
+    (default: Liu 2021's 'separate calibration results' of Table 1 / 3).
     Suggestions say what to add (computed: candidate attitudes or axes are tried, not assumed).
     """
-    model = model or seed000_model(sensor)
+    model = model or liu2021_model(sensor)
     in_unit = model.input_unit
     if form in ("paper12", "tri9", "vector"):
-        att = seed000_attitudes() if attitudes is None else np.asarray(attitudes, dtype=float)
+        att = liu2021_attitudes() if attitudes is None else np.asarray(attitudes, dtype=float)
         rep = _static_report(sensor, model, att, form, latitude_deg, in_unit, rtol)
         sugg = []
         full = 9 if form in ("paper12", "tri9") else 12
@@ -306,7 +306,7 @@ def check_plan(sensor: str = "accel", form: str = "paper12", *, attitudes=None, 
                         "static position can fix this; use form 'tri9' (K E lower triangular, the 9 combinations "
                         "the norm does determine) or a vector calibration with known attitudes")
         if rep.rank < full:
-            cand = (np.concatenate([cube_attitudes(), seed000_attitudes()]) if candidates is None
+            cand = (np.concatenate([cube_attitudes(), liu2021_attitudes()]) if candidates is None
                     else np.asarray(candidates, dtype=float))
             cur = att
             added = []
@@ -336,7 +336,7 @@ def check_plan(sensor: str = "accel", form: str = "paper12", *, attitudes=None, 
         return rep
     if form in ("lgm", "eq25"):
         if rotation_axes is None:
-            axes, rates = seed000_rotation_plan()
+            axes, rates = liu2021_rotation_plan()
         else:
             axes = np.asarray(rotation_axes, dtype=float)
             rates = np.asarray(rotation_rates, dtype=float) if rotation_rates is not None else np.full(len(axes), 10.)
@@ -378,7 +378,7 @@ def _static_report(sensor, model, att, form, latitude_deg, in_unit, rtol):
             J[i::3, 9 + i] = 1.0
         names = tuple(f"KE{r}{c}" for r in "xyz" for c in "xyz") + ("bx", "by", "bz")
         K = np.abs(np.diag(model.KE)).mean()
-        lo, hi = seed000_bounds(sensor)
+        lo, hi = liu2021_bounds(sensor)
         scale = np.concatenate([np.full(9, K * 0.02), hi[9:] - lo[9:]])
         return analyze_jacobian(J, names, scale, rtol=rtol, label=f"{sensor} vector calibration, {n} positions")
     o, _, _ = _static_objective(sensor, model, att, form, latitude_deg, in_unit)

@@ -1,15 +1,15 @@
-"""Objective functions of the norm-observed calibration (seed 000), vectorised over a population.
+"""Objective functions of the norm-observed calibration (Liu 2021), vectorised over a population.
 
 Every objective maps a population ``theta`` (P, p) to values (P,) (a single vector (p,) gives a scalar), and
 offers the residual vector and its analytic Jacobian for least squares.
 
-Model (seed 000 eqs. 1-4): N = K E x + b, with N the rate reading [output unit, count s-1 for the synthetic
+Model (Liu 2021 eqs. 1-4): N = K E x + b, with N the rate reading [output unit, count s-1 for the synthetic
 unit], x the input in the body frame [input unit: g for accelerometers, deg/h for gyros], K diagonal,
 E with unit diagonal. ``M = K E`` is a general 3x3 matrix with ``M_ii = K_i`` and ``M_ij = K_i E_ij``.
 
 Parameterisations ("forms"):
 
-* ``paper12`` — seed 000 eq. 8 / 19: [Kx Ky Kz Exy Exz Eyx Eyz Ezx Ezy bx by bz].
+* ``paper12`` — Liu 2021 eq. 8 / 19: [Kx Ky Kz Exy Exz Eyx Eyz Ezx Ezy bx by bz].
 * ``tri9`` — the same with ``Exy = Exz = Eyz = 0`` (``M`` lower triangular): [Kx Ky Kz Eyx Ezx Ezy bx by bz].
   This is the parameterisation the *norm* identifies. The norm ``|M^-1 (N - b)|`` is unchanged when
   M -> M R for any rotation R (a rotation of the whole triad in the body frame: the input is rotated,
@@ -17,15 +17,15 @@ Parameterisations ("forms"):
   Every ``M M^T`` has exactly one lower-triangular factor with positive diagonal (Cholesky), which fixes
   the gauge: the x sensitive axis is the frame's x axis and the y sensitive axis lies in its x-y plane.
 * ``ke9`` — [Kx Ky Kz Exy Exz Eyx Eyz Ezx Ezy] without biases (L_gm of eq. 26 does not see the bias).
-* ``bias3`` — [bx by bz] with ``K E`` held fixed (seed 000 §3.3: gyro drifts from eq. 7 after eq. 26).
+* ``bias3`` — [bx by bz] with ``K E`` held fixed (Liu 2021 §3.3: gyro drifts from eq. 7 after eq. 26).
 
 Objectives:
 
-* :class:`NormObjective` — L_a / L_g of seed 000 eq. 7 on static means; the fitness of eqs. 10 and 20 is
+* :class:`NormObjective` — L_a / L_g of Liu 2021 eq. 7 on static means; the fitness of eqs. 10 and 20 is
   ``1 / L``. Residual ``r_m = ref^2 - |M^-1 (N_m - b)|^2`` with ``ref`` = g (local normal gravity in the
   input unit: gamma / 9.80665 for the synthetic unit's accelerometers) or Omega (Earth rate, 15.041 deg/h).
   L is in input-unit^2 (g^2 or (deg/h)^2).
-* :class:`LgmObjective` — L_gm of seed 000 eq. 26 on rotation pairs:
+* :class:`LgmObjective` — L_gm of Liu 2021 eq. 26 on rotation pairs:
   ``r_j = |N+_j - N-_j|^2 - |K E (2 omega_0^b)_j|^2``. Because ``|M a|^2`` for rotation axes ``a`` along the
   body axes only involves the column norms of M, L_gm constrains 3 of the 9 K/E parameters (rank 3).
   ``relative=True`` (default) divides each term by the measured ``|N+_j - N-_j|^2`` so L_gm is
@@ -133,7 +133,7 @@ class Form:
         return dM, db
 
     def to_paper(self, theta):
-        """The paper's 12-vector (seed 000 eq. 8) of one parameter vector of this form."""
+        """The paper's 12-vector (Liu 2021 eq. 8) of one parameter vector of this form."""
         M, b = self.KE_b(theta)
         return paper_vector(M, b)
 
@@ -154,7 +154,7 @@ class Form:
 
 
 def paper_vector(M, b):
-    """[K, E offdiagonals, b] (seed 000 eq. 8) from K E = M and b."""
+    """[K, E offdiagonals, b] (Liu 2021 eq. 8) from K E = M and b."""
     M = np.asarray(M, dtype=float)
     K = np.diag(M).copy()
     E = M / K[:, None]
@@ -259,7 +259,7 @@ def _adjugate(m):
 
 @numba.njit(cache=True)
 def _k_norm_residuals(th, code, fm, fb, N, T2, w, use_w, out):
-    """out[p, m] = (T2 - |M_p^-1 (N_m - b_p)|^2) * w[m] (seed 000 eq. 7 terms)."""
+    """out[p, m] = (T2 - |M_p^-1 (N_m - b_p)|^2) * w[m] (Liu 2021 eq. 7 terms)."""
     P = th.shape[0]
     nm = N.shape[0]
     for p in range(P):
@@ -280,7 +280,7 @@ def _k_norm_residuals(th, code, fm, fb, N, T2, w, use_w, out):
 
 @numba.njit(cache=True)
 def _k_norm_L(th, code, fm, fb, N, T2, w, use_w, dof, out):
-    """out[p] = sqrt(sum_m r_pm^2 / dof), r of :func:`_k_norm_residuals` (seed 000 eq. 7), inf if not finite."""
+    """out[p] = sqrt(sum_m r_pm^2 / dof), r of :func:`_k_norm_residuals` (Liu 2021 eq. 7), inf if not finite."""
     P = th.shape[0]
     nm = N.shape[0]
     for p in range(P):
@@ -315,7 +315,7 @@ def _k_rms(r, dof, out):
 
 @numba.njit(cache=True)
 def _k_lgm_residuals(th, code, fm, fb, wv, d2, scale, out):
-    """out[p, j] = (|d_j|^2 - |M_p w_j|^2) / scale_j (seed 000 eq. 26 terms)."""
+    """out[p, j] = (|d_j|^2 - |M_p w_j|^2) / scale_j (Liu 2021 eq. 26 terms)."""
     P = th.shape[0]
     J = wv.shape[0]
     for p in range(P):
@@ -331,7 +331,7 @@ def _k_lgm_residuals(th, code, fm, fb, wv, d2, scale, out):
 
 
 class NormObjective:
-    """L_a / L_g of seed 000 eq. 7 on M static means, vectorised; fitness f = 1 / L (eqs. 10, 20).
+    """L_a / L_g of Liu 2021 eq. 7 on M static means, vectorised; fitness f = 1 / L (eqs. 10, 20).
 
     Parameters
     ----------
@@ -383,12 +383,12 @@ class NormObjective:
         return x0, x1, x2
 
     def inputs(self, theta):
-        """Estimated inputs x = (K E)^-1 (N - b) (P, M, 3) [input unit] (seed 000 eq. 6)."""
+        """Estimated inputs x = (K E)^-1 (N - b) (P, M, 3) [input unit] (Liu 2021 eq. 6)."""
         th = np.atleast_2d(np.asarray(theta, dtype=float))
         return np.stack(self._x(th), axis=-1)
 
     def residuals_pop(self, th):
-        """r = ref^2 - |x|^2 (P, M) (seed 000 eq. 7 terms), multiplied by 1/sigma_r if weighted."""
+        """r = ref^2 - |x|^2 (P, M) (Liu 2021 eq. 7 terms), multiplied by 1/sigma_r if weighted."""
         th = np.ascontiguousarray(np.atleast_2d(th), dtype=np.float64)
         out = np.empty((th.shape[0], self.M))
         w = self._weights() if self.weighted else self._ones
@@ -404,7 +404,7 @@ class NormObjective:
         return r
 
     def __call__(self, theta):
-        """L (seed 000 eq. 7): sqrt(sum_m r_m^2 / (M - 1)); (P,) for (P, p), scalar for (p,)."""
+        """L (Liu 2021 eq. 7): sqrt(sum_m r_m^2 / (M - 1)); (P,) for (P, p), scalar for (p,)."""
         th = np.asarray(theta, dtype=np.float64)
         single = th.ndim == 1
         if single or not th.flags.c_contiguous:
@@ -423,7 +423,7 @@ class NormObjective:
             self.weighted = w
 
     def fitness(self, theta):
-        """f = 1 / L (seed 000 eqs. 10 and 20)."""
+        """f = 1 / L (Liu 2021 eqs. 10 and 20)."""
         return 1.0 / np.asarray(self(theta))
 
     # --- least squares ------------------------------------------------------------------------------------
@@ -466,7 +466,7 @@ class NormObjective:
 
 
 class LgmObjective:
-    """L_gm of seed 000 eq. 26 on J rotation pairs, vectorised; fitness f = 1 / L_gm.
+    """L_gm of Liu 2021 eq. 26 on J rotation pairs, vectorised; fitness f = 1 / L_gm.
 
     d : (J, 3) N+_j - N-_j [output unit]; w : (J, 3) (2 omega_0^b)_j = (r+ - r-) x axis [input unit];
     sigma_d : (J, 3) std of d. Form 'ke9' (default) or 'paper12' (the biases then have zero gradient).
@@ -500,7 +500,7 @@ class LgmObjective:
         self.wv = np.ascontiguousarray(self.wv)
 
     def residuals_pop(self, th):
-        """r_j = (|d_j|^2 - |K E w_j|^2) / scale_j (P, J) (seed 000 eq. 26 terms)."""
+        """r_j = (|d_j|^2 - |K E w_j|^2) / scale_j (P, J) (Liu 2021 eq. 26 terms)."""
         th = np.ascontiguousarray(np.atleast_2d(th), dtype=np.float64)
         out = np.empty((th.shape[0], self.J))
         _k_lgm_residuals(th, self._code, self._fm, self._fb, self.wv, self.d2, self.scale, out)
@@ -516,7 +516,7 @@ class LgmObjective:
         return (self.d2[None, :] - (y0 * y0 + y1 * y1 + y2 * y2)) / self.scale[None, :]
 
     def __call__(self, theta):
-        """L_gm (seed 000 eq. 26): sqrt(sum_j r_j^2 / (J - 1))."""
+        """L_gm (Liu 2021 eq. 26): sqrt(sum_j r_j^2 / (J - 1))."""
         th = np.asarray(theta, dtype=float)
         single = th.ndim == 1
         r = self.residuals_pop(th)
@@ -551,14 +551,14 @@ class LgmObjective:
 # Linear (vector) forms: eq. 25 component form and the classical separate calibration
 # ---------------------------------------------------------------------------------------------------------
 def eq25_residuals(theta_ke9, d, w):
-    """Component form of seed 000 eq. 25 as residuals (3J,): d_j - K E w_j, with d_j = N+_j - N-_j and
+    """Component form of Liu 2021 eq. 25 as residuals (3J,): d_j - K E w_j, with d_j = N+_j - N-_j and
     w_j = (2 omega_0^b)_j; zero at the truth for noise-free whole-revolution means."""
     M, _ = Form("ke9").KE_b(theta_ke9)
     return (np.asarray(d) - np.asarray(w) @ M.T).ravel()
 
 
 def eq25_solve(d, w, sigma_d=None):
-    """K E from rotation-pair differences, seed 000 eq. 25 in component form (linear least squares).
+    """K E from rotation-pair differences, Liu 2021 eq. 25 in component form (linear least squares).
 
     For a pair about body axis k at table rates +omega / -omega, ``(N+ - N-) / (2 omega)`` *is* column k
     of K E (three components, not just its norm); with pairs about three non-coplanar axes the nine
@@ -586,7 +586,7 @@ def eq25_solve(d, w, sigma_d=None):
 
 
 def vector_solve(N, x, sigma=None):
-    """Classical calibration: N_m = K E x_m + b with known inputs x_m (seed 000 eqs. 1/3 as vector
+    """Classical calibration: N_m = K E x_m + b with known inputs x_m (Liu 2021 eqs. 1/3 as vector
     observations), weighted linear least squares per output axis i: N_{m,i} = [x_m, 1] . [M_i, b_i].
 
     Returns ``(M (3, 3), b (3,), cov (12, 12), chi2 (3,))`` with cov over [vec(M) row-major, b] and the

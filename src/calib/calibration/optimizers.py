@@ -1,17 +1,17 @@
-"""Population optimisers of seed 000 §3 and their competitors, behind one interface.
+"""Population optimisers of Liu 2021 §3 and their competitors, behind one interface.
 
 Every method has the signature::
 
     method(objective, bounds, rng, budget=(NP, EG), **opts) -> Result
 
-* ``objective`` maps a population (P, D) to values (P,) to be *minimised* (L of seed 000 eqs. 7 / 26; the
+* ``objective`` maps a population (P, D) to values (P,) to be *minimised* (L of Liu 2021 eqs. 7 / 26; the
   paper maximises the fitness f = 1 / L, eqs. 10 and 20, which is the same thing). Least-squares methods also
   need ``objective.residuals(x)`` and (optionally) ``objective.jacobian(x)``.
-* ``bounds`` = (lower (D,), upper (D,)) or a sequence of (lo, hi) pairs (seed 000 Tables 1 and 3).
+* ``bounds`` = (lower (D,), upper (D,)) or a sequence of (lo, hi) pairs (Liu 2021 Tables 1 and 3).
 * ``rng`` a ``numpy.random.Generator``; every random draw comes from it, so a run is reproducible from its seed.
 * ``budget`` = (NP, EG): population size and number of generations; every population method spends
   NP x (EG + 1) objective evaluations (initial population + EG generations). Defaults NP = 60, EG = 1200
-  (seed 000 §3.1).
+  (Liu 2021 §3.1).
 * ``Result``: best ``x``, its value ``fun``, ``history`` (EG + 1,) best value after each generation (index 0 =
   initial population), ``nfev``.
 
@@ -29,7 +29,7 @@ Methods
   random start (or ``x0``).
 * :func:`ide_lsq` — IDE followed by a least-squares polish from IDE's best.
 
-Choices the paper leaves open (documented defaults; the lead fixes them in config):
+Choices the paper leaves open (documented defaults; fixed in config):
 
 * Crossover (eq. 12) as written never forces a mutant component into the trial; we follow the usual
   Storn-Price rule and force one randomly chosen component (``force_one=True``); ``False`` is the literal eq. 12.
@@ -191,13 +191,13 @@ def _k_select(pop, fit, trials, ft):
 
 
 def b_weight(t, EG):
-    """Weight distribution factor b(t) of seed 000 eq. 16: 2 t / EG - (t / EG)^2."""
+    """Weight distribution factor b(t) of Liu 2021 eq. 16: 2 t / EG - (t / EG)^2."""
     s = t / EG
     return 2.0 * s - s * s
 
 
 def F_adaptive(t, EG, L_worst, L_best, F_max=1.2, F_min=0.3, alpha=0.1, beta=0.15, l_scale=1.0):
-    """Adaptive mutation factor F(t) of seed 000 eq. 17 with 1/f_min - 1/f_max = L_worst - L_best."""
+    """Adaptive mutation factor F(t) of Liu 2021 eq. 17 with 1/f_min - 1/f_max = L_worst - L_best."""
     spread = (L_worst - L_best) / l_scale
     return F_max - (F_max - F_min) / (1.0 + alpha * spread + beta * (1.0 - t / EG))
 
@@ -259,35 +259,35 @@ def _de_core(objective, bounds, rng, budget, *, method, b_sched, F_const=1.2, CR
 
 
 def de_rand1(objective, bounds, rng, budget=(60, 1200), *, F=1.2, CR=0.6, **opts) -> Result:
-    """DE/rand/1/bin: theta_M = theta_x + F (theta_y - theta_z) (seed 000 eq. 11), crossover eq. 12,
-    selection eq. 13; F = 1.2, CR = 0.6 (seed 000 §3.1)."""
+    """DE/rand/1/bin: theta_M = theta_x + F (theta_y - theta_z) (Liu 2021 eq. 11), crossover eq. 12,
+    selection eq. 13; F = 1.2, CR = 0.6 (Liu 2021 §3.1)."""
     return _de_core(objective, bounds, rng, budget, method="de_rand1", b_sched=lambda t, EG: 0.0, F_const=F,
                     CR=CR, **opts)
 
 
 def de_current_to_best1(objective, bounds, rng, budget=(60, 1200), *, F=1.2, CR=0.6, **opts) -> Result:
     """DE/current-to-best/1: theta_M = theta_i + F (theta_best - theta_i) + F (theta_x - theta_y)
-    (seed 000 eq. 14)."""
+    (Liu 2021 eq. 14)."""
     return _de_core(objective, bounds, rng, budget, method="de_current_to_best1", b_sched=lambda t, EG: 1.0,
                     F_const=F, CR=CR, **opts)
 
 
 def de_integration(objective, bounds, rng, budget=(60, 1200), *, F=1.2, CR=0.6, **opts) -> Result:
-    """Integration strategy alone: seed 000 eq. 15 with b(t) of eq. 16 and a fixed F."""
+    """Integration strategy alone: Liu 2021 eq. 15 with b(t) of eq. 16 and a fixed F."""
     return _de_core(objective, bounds, rng, budget, method="de_integration", b_sched=b_weight, F_const=F, CR=CR,
                     **opts)
 
 
 def ide(objective, bounds, rng, budget=(60, 1200), *, CR=0.6, F_max=1.2, F_min=0.3, alpha=0.1, beta=0.15,
         l_scale=1.0, **opts) -> Result:
-    """Improved DE of seed 000 §3.2: mutation eq. 18 (eq. 15 with b(t) of eq. 16 and F(t) of eq. 17),
+    """Improved DE of Liu 2021 §3.2: mutation eq. 18 (eq. 15 with b(t) of eq. 16 and F(t) of eq. 17),
     crossover eq. 12 (CR = 0.6), selection eq. 13. See the module docstring for F_max, F_min and l_scale."""
     return _de_core(objective, bounds, rng, budget, method="ide", b_sched=b_weight, CR=CR, adaptive=True,
                     F_max=F_max, F_min=F_min, alpha=alpha, beta=beta, l_scale=l_scale, **opts)
 
 
 # ---------------------------------------------------------------------------------------------------------
-# GA and PSO (seed 000 Table 5 competitors)
+# GA and PSO (Liu 2021 Table 5 competitors)
 # ---------------------------------------------------------------------------------------------------------
 def ga(objective, bounds, rng, budget=(60, 1200), *, tournament=2, p_crossover=0.9, eta_c=15.0,
        p_mutation=None, eta_m=20.0, n_elite=2, init=None) -> Result:

@@ -3,7 +3,7 @@
 Frames and conventions used throughout ``calib``:
 
 * ``n`` — local-level navigation frame, axes East, North, Up (ENU).
-* ``b`` — body frame of the IMU; seed 000 uses right-front-up (x right, y front, z up).
+* ``b`` — body frame of the IMU; Liu 2021 uses right-front-up (x right, y front, z up).
 * Latitude ``lat`` and longitude ``lon`` in radians inside the library, degrees in files and config.
 * Heights in metres above the WGS-84 ellipsoid.
 

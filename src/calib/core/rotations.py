@@ -4,11 +4,11 @@ Conventions
 -----------
 * ``C_b^n`` (``cbn``) maps body-frame vectors to the ENU navigation frame: ``v_n = C_b^n v_b``.
 * Quaternions are scalar-first ``(q0, q1, q2, q3)`` and represent the same rotation as ``C_b^n``.
-* Euler angles follow the ENU convention common in Chinese SINS literature (seed 001): yaw ``psi``
+* Euler angles follow the ENU convention common in Chinese SINS literature (He 2019): yaw ``psi``
   about Up (positive counter-clockwise seen from above, i.e. *from North towards West*), then pitch
   ``theta`` about the once-rotated East (x) axis, then roll ``gamma`` about the body y axis:
   ``C_b^n = R_z(psi) R_x(theta) R_y(gamma)``. Heading (clockwise from North) is ``-psi``.
-* Small attitude errors ``phi`` (the misalignment of seed 001 eq. 4) are defined by
+* Small attitude errors ``phi`` (the misalignment of He 2019 eq. 4) are defined by
   ``C_b^n_computed = (I - [phi x]) C_b^n_true``.
 """
 from __future__ import annotations

@@ -1,18 +1,18 @@
-"""Sensor error model of a triad (seed 000 eqs. 1-4) and its parameter vector.
+"""Sensor error model of a triad (Liu 2021 eqs. 1-4) and its parameter vector.
 
-    N = K E x + b                                            (seed 000 eqs. 1 and 3)
+    N = K E x + b                                            (Liu 2021 eqs. 1 and 3)
 
 * ``x`` the true input in the body frame (specific force or angular rate), in the triad's *input unit*;
 * ``K = diag(Kx, Ky, Kz)`` scale factors [output unit per input unit];
-* ``E`` installation-error matrix with unit diagonal (seed 000 eq. 2/4): rows are the sensitive axes
+* ``E`` installation-error matrix with unit diagonal (Liu 2021 eq. 2/4): rows are the sensitive axes
   of the x, y, z sensors expressed in the body frame, to first order;
 * ``b`` biases [output unit].
 
-Parameter vector order (seed 000 eqs. 8 and 19)::
+Parameter vector order (Liu 2021 eqs. 8 and 19)::
 
     [Kx, Ky, Kz, Exy, Exz, Eyx, Eyz, Ezx, Ezy, bx, by, bz]
 
-Units of the synthetic unit (seed 000 does not state them; this is the project's documented reading):
+Units of the synthetic unit (Liu 2021 does not state them; this is the project's documented reading):
 
 * accelerometers: input in standard g (9.80665 m/s^2), output in ``count s-1`` (the pulse rate of a
   quantised velocity-increment channel), so ``Ka ~ 13942 count s-1 per g`` and ``ba ~ -207 count s-1``
@@ -20,7 +20,7 @@ Units of the synthetic unit (seed 000 does not state them; this is the project's
 * gyros: input in deg/h, output in ``count s-1``, so ``Kg ~ 7922 count s-1 per deg/h`` and a bias of
   -208 count s-1 is -0.026 deg/h, a plausible navigation-grade FOG.
 
-With these units the bounds of seed 000 Tables 1 and 3 contain the true values.
+With these units the bounds of Liu 2021 Tables 1 and 3 contain the true values.
 """
 from __future__ import annotations
 
@@ -83,16 +83,16 @@ def ke_from_vector(theta):
     return theta[..., 0:3, None] * E
 
 
-#: "Separate calibration results" of seed 000 Table 1 (accelerometers) and Table 3 (gyros):
+#: "Separate calibration results" of Liu 2021 Table 1 (accelerometers) and Table 3 (gyros):
 #: scale factors, biases, and the two installation-error columns (row i holds E_i,j for j != i in order).
-SEED000_ACCEL = {
+LIU2021_ACCEL = {
     "K": [13942.35422951, 13345.72485877, 13062.44709817],
     "b": [-206.59251066, 87.24553607, 333.71033323],
     "E": [[0.00336420, 0.00191168], [0.00271530, -0.00204019], [-0.00739421, -0.00044851]],
     "lower": {"K": 13000.0, "b": -400.0, "E": -0.01},
     "upper": {"K": 14000.0, "b": 400.0, "E": 0.01},
 }
-SEED000_GYRO = {
+LIU2021_GYRO = {
     "K": [7921.74760617, 7911.54386049, 7924.57007346],
     "b": [-208.33680363, -33.24299533, -54.56475774],
     "E": [[-0.00489132, 0.00096090], [0.00058152, 0.00018519], [0.00449350, 0.00137873]],
@@ -101,9 +101,9 @@ SEED000_GYRO = {
 }
 
 
-def seed000_model(sensor: str) -> TriadModel:
-    """The seed-000 'separate calibration results' as a :class:`TriadModel` (the default synthetic truth)."""
-    t = SEED000_ACCEL if sensor == "accel" else SEED000_GYRO
+def liu2021_model(sensor: str) -> TriadModel:
+    """The Liu 2021 'separate calibration results' as a :class:`TriadModel` (the default synthetic truth)."""
+    t = LIU2021_ACCEL if sensor == "accel" else LIU2021_GYRO
     E = np.eye(3)
     flat = [v for row in t["E"] for v in row]
     for k, (i, j) in enumerate(OFFDIAG):
@@ -111,9 +111,9 @@ def seed000_model(sensor: str) -> TriadModel:
     return TriadModel(np.array(t["K"]), E, np.array(t["b"]), INPUT_UNITS[sensor][0], "count s-1")
 
 
-def seed000_bounds(sensor: str):
-    """Lower and upper bounds of seed 000 Table 1 (accel) or Table 3 (gyro) in parameter order."""
-    t = SEED000_ACCEL if sensor == "accel" else SEED000_GYRO
+def liu2021_bounds(sensor: str):
+    """Lower and upper bounds of Liu 2021 Table 1 (accel) or Table 3 (gyro) in parameter order."""
+    t = LIU2021_ACCEL if sensor == "accel" else LIU2021_GYRO
     lo = [t["lower"]["K"]] * 3 + [t["lower"]["E"]] * 6 + [t["lower"]["b"]] * 3
     hi = [t["upper"]["K"]] * 3 + [t["upper"]["E"]] * 6 + [t["upper"]["b"]] * 3
     return np.array(lo), np.array(hi)

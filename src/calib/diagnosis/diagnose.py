@@ -9,9 +9,9 @@ Method
 1. **Base model and goodness of fit.** Observations are window reductions of the rate readings
    (:mod:`calib.diagnosis.signatures`): static-segment means and, for rotation segments cut to whole revolutions with
    the table angle, the mean and the first table-angle harmonics. With nominal attitudes (synthetic
-   sessions) the *vector* model is used: ``N = M x + b`` per triad (M = K E, seed 000 eqs. 1-4) with known
+   sessions) the *vector* model is used: ``N = M x + b`` per triad (M = K E, Liu 2021 eqs. 1-4) with known
    inputs x (f = C_n^b (0, 0, g), omega = table rate + C_n^b omega_ie^n) -- linear, 24 parameters, all
-   identified. Without attitudes (real recordings) the *norm* model of the accelerometer is used (seed 000
+   identified. Without attitudes (real recordings) the *norm* model of the accelerometer is used (Liu 2021
    eq. 7, identified lower-triangular form, :mod:`calib.calibration.objectives`), see :func:`_norm_problem`.
    The fit is generalised least squares with the covariance of the window means from the noise model
    (:func:`calib.diagnosis.signatures.fit_noise`: Allan deviation for white noise and quantisation, restricted ML of
@@ -38,7 +38,7 @@ Method
 5. **Report.** verdict (``adequate`` | ``missing_physics`` | ``inconclusive``), ``found[]``, ``absent[]``
    (tested, with 95 % upper bounds), ``untestable[]`` (why, and the experiment that would make it testable).
 
-:func:`run_proof` runs the concealed-effect proof (seed 000 path, simulator of :mod:`calib.sim.simulator`) and
+:func:`run_proof` runs the concealed-effect proof (Liu 2021 path, simulator of :mod:`calib.sim.simulator`) and
 :func:`score` compares a report with a truth sidecar.
 """
 from __future__ import annotations
@@ -1545,10 +1545,10 @@ def build_report(prob: Problem, res: dict, path, st, figures_dir=None) -> dict:
         "source": str(prob.__dict__.get("source_kind", "")),
         "model": prob.kind,
         "model_description": (
-            "vector model N = M x + b per triad (M = K E, seed 000 eqs. 1-4) with the inputs known from the nominal "
+            "vector model N = M x + b per triad (M = K E, Liu 2021 eqs. 1-4) with the inputs known from the nominal "
             "attitudes and the table rate/angle; 24 parameters, all identified"
             if prob.kind == "vector" else
-            "accelerometer norm model (seed 000 eq. 7) in the identified lower-triangular form (9 parameters); "
+            "accelerometer norm model (Liu 2021 eq. 7) in the identified lower-triangular form (9 parameters); "
             "the recording has no nominal attitudes, so only what the gravity norm sees can be tested"),
         "site": {"latitude_deg": g.latitude_deg, "height_m": g.height_m, "gravity_m_s2": g.gravity_m_s2,
                  "gravity_source": g.gravity_source},
@@ -1698,7 +1698,7 @@ def _norm_initial(N, ref):
 
 
 def setup_norm_problem(ds, settings=None) -> Problem:
-    """The accelerometer norm model (seed 000 eq. 7, lower-triangular form tri9) linearised at its solution:
+    """The accelerometer norm model (Liu 2021 eq. 7, lower-triangular form tri9) linearised at its solution:
     observations are the norm residuals r_m = ref^2 - |M^-1 (N_m - b)|^2 of the static means, the base design
     their Jacobian, the effect signatures -2 x^T M^-1 K dd/dphi (x = M^-1 (N - b), sensor-axis input
     y = (N - b)/K, K_i = |row i of M|). Noise: white + quantisation of each mean from the Allan deviation,

@@ -4,7 +4,7 @@ Everything here is a function of the recording's *geometry* (segment table, tabl
 site) and, for the effect signatures, of the base calibration (K E, b); the data enter only through
 :func:`reduce_data` and the noise fit. The diagnosis is then linear algebra on segment means.
 
-Observations (vector model, seed 000 eqs. 1-4: N = K E x + b)
+Observations (vector model, Liu 2021 eqs. 1-4: N = K E x + b)
 --------------------------------------------------------------
 Rate readings ``N`` [count s-1 for the synthetic unit: counts per sample / dt] are reduced per *window*:
 
@@ -12,8 +12,8 @@ Rate readings ``N`` [count s-1 for the synthetic unit: counts per sample / dt] a
 * rotation segment j (cut to whole revolutions with the recorded ``table_angle``): the coefficients of the
   least-squares fit ``N(t) = c0 + c1 cos(theta) + c2 sin(theta)`` over the window, ``theta`` the table angle at
   the sample *mid-times* (sample k covers [k dt, (k+1) dt)). Over whole revolutions ``c0`` is the window mean
-  (seed 000 eq. 23); ``c1, c2`` are the table-angle harmonics through which the Earth-rate component
-  perpendicular to the axis shows (seed 000 eq. 22). The gyros use (c0, c1, c2); the accelerometers only c0
+  (Liu 2021 eq. 23); ``c1, c2`` are the table-angle harmonics through which the Earth-rate component
+  perpendicular to the axis shows (Liu 2021 eq. 22). The gyros use (c0, c1, c2); the accelerometers only c0
   (their harmonics are zero with the axis vertical for every term of the library).
 
 Each observation o is ``sum_k w_ok N_k`` with known weights, so its prediction under any model is the same
@@ -103,7 +103,7 @@ class Window:
     revolutions: int = 0
     W: np.ndarray | None = None          # (n, r) reduction weights: obs = W^T N
     spline: CubicSpline | None = None    # continuous table angle [rad] vs time [s] around the window
-    phase: str = ""                      # 'P1'.. for static positions of the seed-000 path
+    phase: str = ""                      # 'P1'.. for static positions of the Liu 2021 path
     position: int = -1                   # position number within the phase (0-based)
 
     @property
@@ -317,7 +317,7 @@ def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_
     if len(st) < min_static:
         raise DiagnosisInputError(f"{src}: only {len(st)} static segments (at least {min_static} are needed to "
                                   "calibrate the base model and test anything beyond it)",
-                                  "record more static positions (seed 000 uses 24)")
+                                  "record more static positions (Liu 2021 uses 24)")
     vector = att_all is not None and all(w.attitude is not None and np.all(np.isfinite(w.attitude)) for w in windows)
     if has_angle and windows:
         max_off = max_offset_s

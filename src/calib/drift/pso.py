@@ -1,14 +1,14 @@
-"""Particle swarm optimisation for gyro-drift estimation (seed 001 §III, eqs. 16-19).
+"""Particle swarm optimisation for gyro-drift estimation (He 2019 §III, eqs. 16-19).
 
-Particles are gyro-drift triplets [deg/h] in the body frame. The swarm *maximises* a fitness; seed 001 uses
+Particles are gyro-drift triplets [deg/h] in the body frame. The swarm *maximises* a fitness; He 2019 uses
 the navigation-error functional J of eq. (18), which is minimised, so the fitness used here is ``-J`` and
-the history stores ``J`` of the global best (seed 001 Figure 3 plots a fitness that decreases).
+the history stores ``J`` of the global best (He 2019 Figure 3 plots a fitness that decreases).
 
 Two variants, chosen in config:
 
 * ``paper`` — eqs. (16)-(17) with the paper's settings: c1 = c2 = 1, r1 = r2 = 1 (deterministic pulls),
   inertia w = 1, velocity clamped to [v_min, v_max] = +-0.1/100 deg/h, positions kept inside the search
-  range [-0.03, 0.03] deg/h by clipping (seed 001 does not say how it treats the range; clipping is ours).
+  range [-0.03, 0.03] deg/h by clipping (He 2019 does not say how it treats the range; clipping is ours).
   Initial velocities: zero (not stated in the paper).
 * ``standard`` — the common PSO of Shi & Eberhart (1998): r1, r2 ~ U(0, 1) per particle and dimension,
   inertia decreasing linearly from w_start to w_end, c1 = c2 = 2 by default, same clamp and range.
@@ -59,7 +59,7 @@ class PSOResult:
 
 
 def minimize(cost, rng: np.random.Generator, settings: PSOSettings, dim: int = 3, progress=None) -> PSOResult:
-    """Minimise ``cost(X) -> (P,)`` over particles ``X (P, dim)`` with PSO (seed 001 eqs. 16-17).
+    """Minimise ``cost(X) -> (P,)`` over particles ``X (P, dim)`` with PSO (He 2019 eqs. 16-17).
 
     ``cost`` is evaluated once per generation on the whole swarm (the navigation of all particles runs in
     one compiled pass). Returns the global best and the per-generation history.
@@ -82,7 +82,7 @@ def minimize(cost, rng: np.random.Generator, settings: PSOSettings, dim: int = 3
             w = s.w_start + (s.w_end - s.w_start) * m / max(G - 1, 1)
             r1, r2 = rng.random((P, dim)), rng.random((P, dim))
         v = w * v + s.c1 * r1 * (pbest - x) + s.c2 * r2 * (gbest - x)  # eq. 16
-        np.clip(v, -s.v_max, s.v_max, out=v)  # velocity limit of seed 001 §III.A
+        np.clip(v, -s.v_max, s.v_max, out=v)  # velocity limit of He 2019 §III.A
         x = np.clip(x + v, lo, hi)  # eq. 17, kept in the search range
         c = np.asarray(cost(x), dtype=float)
         better = c < pcost
@@ -100,6 +100,6 @@ def minimize(cost, rng: np.random.Generator, settings: PSOSettings, dim: int = 3
 
 
 def accuracy(estimate, reference):
-    """Estimation accuracy Ac = (1 - |(eta_e - eta_i) / eta_i|) x 100 % (seed 001 eq. 19)."""
+    """Estimation accuracy Ac = (1 - |(eta_e - eta_i) / eta_i|) x 100 % (He 2019 eq. 19)."""
     estimate, reference = np.asarray(estimate, float), np.asarray(reference, float)
     return (1.0 - np.abs((estimate - reference) / reference)) * 100.0

@@ -1,10 +1,10 @@
-"""Gyro-drift estimation from pure-inertial navigation errors (seed 001), with its noise limit and baselines.
+"""Gyro-drift estimation from pure-inertial navigation errors (He 2019), with its noise limit and baselines.
 
-Scenario (seed 001 §IV.A): a stationary IMU at known position, zero velocity; the first ``window_h`` hours
+Scenario (He 2019 §IV.A): a stationary IMU at known position, zero velocity; the first ``window_h`` hours
 of the recording are navigated; a candidate drift triplet ``eps`` [deg/h, body frame] is compensated
 (subtracted from the gyro output) and the navigation errors against the known truth are scored by
 
-    J = rho_1 sum |e_VE| + rho_2 sum |e_VN| + rho_3 sum |e_Lat| + rho_4 sum |e_Lon|     (seed 001 eq. 18)
+    J = rho_1 sum |e_VE| + rho_2 sum |e_VN| + rho_3 sum |e_Lat| + rho_4 sum |e_Lon|     (He 2019 eq. 18)
 
 summed at the output interval. Velocity errors in m/s; latitude and longitude errors in the unit chosen in
 config (``arcmin`` by default, or ``m`` -- north and east distance -- or ``rad``). The choice weights the
@@ -93,7 +93,7 @@ def errors_from_output(out, lat0, lon0):
 
 
 def position_scale(unit: str, lat0: float, h0: float = 0.0):
-    """Factors turning latitude and longitude errors [rad] into the J unit (seed 001 eq. 18)."""
+    """Factors turning latitude and longitude errors [rad] into the J unit (He 2019 eq. 18)."""
     if unit == "arcmin":
         return 1.0 / ARCMIN, 1.0 / ARCMIN
     if unit == "rad":
@@ -105,7 +105,7 @@ def position_scale(unit: str, lat0: float, h0: float = 0.0):
 
 
 def cost_J(err, weights, unit, lat0, h0=0.0):
-    """J of seed 001 eq. (18) per stream from :func:`errors_from_output` dicts."""
+    """J of He 2019 eq. (18) per stream from :func:`errors_from_output` dicts."""
     kl, kn = position_scale(unit, lat0, h0)
     r1, r2, r3, r4 = weights
     return (r1 * np.abs(err["vE"]).sum(-1) + r2 * np.abs(err["vN"]).sum(-1)
@@ -158,7 +158,7 @@ class NavigationCost:
 
 
 def table1(estimates, reference):
-    """Seed 001 Table 1: max, min, mean, std per axis, the reference, and Ac (eq. 19) of the mean."""
+    """He et al. (2019) Table 1: max, min, mean, std per axis, the reference, and Ac (eq. 19) of the mean."""
     from calib.drift.pso import accuracy
 
     est = np.asarray(estimates, float)
@@ -178,7 +178,7 @@ INITIAL_CONDITIONS = ("true_attitude", "leveled", "self_aligned")
 def initial_error_map(condition: str, lat: float, C_bn, g: float):
     """x(0) = L theta: the initial error state (7) as a linear function of theta = [eps_body (3), nabla_body (3)].
 
-    * ``true_attitude`` (seed 001's implicit choice): x(0) = 0.
+    * ``true_attitude`` (He 2019's implicit choice): x(0) = 0.
     * ``leveled``: tilt from the accelerometers, which cancel the level accelerometer biases at the start:
       phi_E = -nabla_N / g, phi_N = nabla_E / g (ENU components); heading true. The east bias stays hidden in
       the tilt; the north one leaks through the Earth-rate coupling (phi_N' = W sin L nabla_N / g), which looks
@@ -226,7 +226,7 @@ def _discretize(A, Qc, dt):
 def kalman_drift(y, dt_out, lat, C_bn, arw_rad_rts, condition="true_attitude", h=0.0, sigma_v=1e-5,
                  sigma_p_rad=1e-9, estimate_accel_bias=True, prior_eps=1e-5, prior_nabla=1e-1, white_rad_s=0.0,
                  dt_sample=0.01):
-    """Kalman filter on the linear stationary error model (seed 001 eqs. 4-8) with zero-velocity and
+    """Kalman filter on the linear stationary error model (He 2019 eqs. 4-8) with zero-velocity and
     known-position measurements every ``dt_out`` s; returns the final estimate of the constant errors and
     its covariance.
 

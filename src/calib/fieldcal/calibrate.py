@@ -1,4 +1,4 @@
-"""Field calibration of real recordings that hold no turntable record (issue 7 §3).
+"""Field calibration of real recordings that hold no turntable record.
 
 Without a table the orientations are unknown; what a multi-position session offers is (a) the *norm* of
 the specific force at rest, which must equal local gravity, and (b) between two rests, the rotation that

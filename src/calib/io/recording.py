@@ -16,7 +16,7 @@ dims ``time`` and ``axis`` (= x, y, z); optional ``segment``, ``row``, ``col``.
 * global attributes: ``latitude_deg`` (required), ``height_m``, ``gravity_m_s2``, ``sample_rate_hz``,
   ``source`` (synthetic | recorded), ``sensor``, ``conventions = "calib-recording-1"``.
 
-Body frame: whatever the sensor's case marks; for the synthetic unit, seed 000's right-front-up.
+Body frame: whatever the sensor's case marks; for the synthetic unit, Liu 2021's right-front-up.
 Navigation frame: ENU. Rates are signed by the right-hand rule.
 """
 from __future__ import annotations

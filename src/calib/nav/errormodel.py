@@ -1,4 +1,4 @@
-"""Linearised error model of a stationary pure-inertial INS in ENU (seed 001 eqs. 4-8), vertical channel removed.
+"""Linearised error model of a stationary pure-inertial INS in ENU (He 2019 eqs. 4-8), vertical channel removed.
 
 State (7) and inputs (6, body frame)::
 
@@ -7,7 +7,7 @@ State (7) and inputs (6, body frame)::
 
 Conventions (those of :mod:`calib.core.rotations` and :mod:`calib.nav.strapdown`): measured = true + error;
 the misalignment phi is defined by C_b^n(computed) = (I - [phi x]) C_b^n(true); errors are computed minus
-true. On a stationary base (v = 0, omega_en = 0, omega_in = omega_ie = (0, W cos L, W sin L)) seed 001
+true. On a stationary base (v = 0, omega_en = 0, omega_in = omega_ie = (0, W cos L, W sin L)) He 2019
 eqs. (4)-(7) become::
 
     phi'   = phi x omega_ie + d(omega_ie) + d(omega_en) - C_b^n eps
@@ -29,7 +29,7 @@ dvE tan L/(R_N+h)). Written out (W_N = W cos L, W_U = W sin L, R_M, R_N includin
 The +-2 W sin L couplings of the velocity errors are the Coriolis (Foucault) terms: they split the
 Schuler frequency omega_s = sqrt(g/R) into the pair sqrt(omega_s^2 + omega_F^2) +- omega_F with
 omega_F = W sin L (an 84-min oscillation whose envelope beats with the ~34-h Foucault period at 30.58 deg),
-besides the 24-h Earth-rate mode. The closed forms of seed 001 eqs. (9)-(15) ignore this coupling (and carry
+besides the 24-h Earth-rate mode. The closed forms of He 2019 eqs. (9)-(15) ignore this coupling (and carry
 dimensional slips), so they are not used as reference; the model is integrated exactly instead: with the
 constant inputs appended to the state, z = [x; u] obeys z' = A z, A = [[F, G], [0, 0]], and
 z(t) = expm(A t) z(0). :func:`transition` evaluates expm once per output step and propagates on a uniform

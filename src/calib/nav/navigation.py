@@ -11,7 +11,7 @@ Raw samples to SI increments
   rates): :func:`calib.io.recording.to_si`.
 * counts: need a calibration object (:class:`Calibration` protocol) turning the raw *rate* reading
   (counts per second; for increment counts, counts / dt) into the SI rate in the body frame. For a pair of
-  :class:`calib.core.triad.TriadModel` (N = K E x + b, seed 000 eqs. 1-4) use :class:`TriadCalibration`:
+  :class:`calib.core.triad.TriadModel` (N = K E x + b, Liu 2021 eqs. 1-4) use :class:`TriadCalibration`:
   x = (K E)^-1 (N - b) in the triad's input unit, then to SI.
 
 Initial conditions (``init``)
@@ -78,7 +78,7 @@ def _input_factor(unit: str, sensor: str) -> float:
 
 @dataclass
 class TriadCalibration:
-    """Calibration from two triad models N = K E x + b (seed 000 eqs. 1-4): x = (K E)^-1 (N - b), then SI."""
+    """Calibration from two triad models N = K E x + b (Liu 2021 eqs. 1-4): x = (K E)^-1 (N - b), then SI."""
 
     accel: object  # sensors.TriadModel, input unit e.g. 'g', output 'count s-1'
     gyro: object  # sensors.TriadModel, input unit e.g. 'deg h-1', output 'count s-1'

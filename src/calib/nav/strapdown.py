@@ -2,12 +2,12 @@
 
 Frames, units, conventions
 --------------------------
-* ``n`` = East-North-Up local-level frame, ``b`` = IMU body frame (seed 000 unit: right-front-up).
+* ``n`` = East-North-Up local-level frame, ``b`` = IMU body frame (Liu 2021 unit: right-front-up).
 * Inputs are body-frame *increments* per sample: ``dtheta`` [rad] (integral of the angular rate
   omega_ib^b) and ``dv`` [m/s] (integral of the specific force f^b).
 * Attitude is the quaternion of C_b^n (scalar first, :mod:`calib.core.rotations`); outputs are pitch, roll,
   yaw [rad] with C_b^n = Rz(yaw) Rx(pitch) Ry(roll); vE, vN, vU [m/s]; lat, lon [rad]; h [m].
-* The navigation equations are seed 001 eqs. (1)-(3) with the WGS-84 radii R_M, R_N, normal gravity and
+* The navigation equations are He 2019 eqs. (1)-(3) with the WGS-84 radii R_M, R_N, normal gravity and
   Earth rate of :mod:`calib.core.earth`.
 
 Algorithm (two-speed, after Savage, "Strapdown inertial navigation integration algorithm design", 1998)
@@ -29,13 +29,13 @@ Navigation rate (interval T = n_sub dt, :func:`navigate`):
 1. Earth quantities at the current position: R_M, R_N, g(lat, h), omega_ie^n, omega_en^n.
 2. velocity: Dv_sf^b = Dv + c1 Dtheta x Dv + c2 Dtheta x (Dtheta x Dv) (rotation compensation, c1 ~ 1/2,
    c2 ~ 1/6, Savage's exact coefficients for a fixed rotation axis), Dv_sf^n = (I - T/2 [omega_in^n x])
-   C_b^n Dv_sf^b, v += Dv_sf^n + T (g^n - (2 omega_ie^n + omega_en^n) x v)                  (seed 001 eq. 2)
+   C_b^n Dv_sf^b, v += Dv_sf^n + T (g^n - (2 omega_ie^n + omega_en^n) x v)                  (He 2019 eq. 2)
 3. position with the mean velocity of the interval: lat += T vN/(R_M + h), lon += T vE/((R_N + h) cos lat)
-                                                                                           (seed 001 eq. 3)
+                                                                                           (He 2019 eq. 3)
 4. attitude: q = q(-omega_in^n T) * q * q(Dtheta) with exact rotation-vector quaternions; omega_in^n at
    mid-interval (mean of old and new velocity, mean latitude), matching the mid-interval attitude the
    velocity update sees: the discrete Schuler loop is then area-preserving (no spurious amplitude growth
-   or decay over 240 h)                                                                      (seed 001 eq. 1)
+   or decay over 240 h)                                                                      (He 2019 eq. 1)
 
 The single-speed path is the same with ``n_sub = 1`` (the coning/sculling terms then reduce to the
 classical "previous sample" corrections dtheta_{k-1} x dtheta_k / 12).
@@ -46,7 +46,7 @@ Default ``vertical="hold"``: height fixed to its initial value and vU = 0. In pu
 vertical channel is unstable: a height error dh changes the computed gravity by 2 g/R dh, which feeds
 back positively (d2(dh)/dt2 = +2 g/R dh), so any error grows like exp(sqrt(2) omega_s t) with a time
 constant of about 9 minutes -- after a few hours the height and vU are meaningless and, through the
-Coriolis and transport-rate terms, they would contaminate the horizontal channels that seed 001 studies.
+Coriolis and transport-rate terms, they would contaminate the horizontal channels that He 2019 studies.
 ``"free"`` integrates the vertical channel as is (for demonstration); ``"damped"`` closes a second-order
 loop on the initial height (a barometer-like reference) with natural period ``vertical_period_s``.
 

@@ -3,14 +3,14 @@
 * Static positions: the mean of the *rate reading* per static segment, per axis, with its standard deviation
   from the Allan deviation at tau = segment duration (``allan.py`` eq. 1). For increment channels
   (``sample_kind = increment``, units ``count``) the rate reading is ``N = counts / dt`` in ``count s-1``
-  (seed 000's N); for rate channels it is the sample itself.
+  (Liu 2021's N); for rate channels it is the sample itself.
 * Rotation segments: the mean over *whole revolutions* of the table, cut with ``table_angle``
   (``|angle - angle_start|`` = k x 360 deg), so the Earth-rate components perpendicular to the rotation
-  axis average out (seed 000 eqs. 21-23); each with its signed table rate [deg/s, right-hand rule] and
+  axis average out (Liu 2021 eqs. 21-23); each with its signed table rate [deg/s, right-hand rule] and
   its axis (unit vector, body frame).
-* Rotation pairs: a + and a - rotation about the same axis at the same |rate| (seed 000 eqs. 23-26).
+* Rotation pairs: a + and a - rotation about the same axis at the same |rate| (Liu 2021 eqs. 23-26).
 
-Frames: body frame of the unit (seed 000: right-front-up); nominal attitudes are C_b^n (body to ENU).
+Frames: body frame of the unit (Liu 2021: right-front-up); nominal attitudes are C_b^n (body to ENU).
 The noise (sigma of each mean) comes from the Allan deviation pooled over all static segments of the same
 sensor (so it includes bias instability and random walk, not just the white scatter inside one window).
 """
@@ -67,7 +67,7 @@ def input_unit_for(sensor: str, output_unit: str) -> str:
 
 def reference_magnitude(sensor: str, input_unit: str, latitude_deg: float, height_m: float = 0.0,
                         gravity_m_s2: float | None = None) -> float:
-    """|input| at rest in ``input_unit``: local normal gravity (accel) or Earth rate (gyro), seed 000 eq. 5.
+    """|input| at rest in ``input_unit``: local normal gravity (accel) or Earth rate (gyro), Liu 2021 eq. 5.
 
     Gravity: WGS-84 normal gravity (or the recording's ``gravity_m_s2``); in ``g`` it is gamma / 9.80665.
     Earth rate: 7.292115e-5 rad/s = 15.041 deg/h.
@@ -97,7 +97,7 @@ class StaticMeans:
 
     ``means`` (M, 3) rate reading [output_unit]; ``sigma`` (M, 3) std of each mean [output_unit];
     ``duration_s`` (M,); ``attitude`` (M, 3, 3) nominal C_b^n or None; ``reference`` |input| at rest
-    [input_unit] (g or Omega, seed 000 eq. 5). ``t_start_s`` (M,) start of each averaged window [s from the
+    [input_unit] (g or Omega, Liu 2021 eq. 5). ``t_start_s`` (M,) start of each averaged window [s from the
     recording's first sample] (None for closed-form means); ``cov_axes`` (3, M, M) full covariance of the means
     per axis [output_unit^2] when a noise model with the slow part is attached (``calib.signal.noisecov``), else None
     (independent means with std ``sigma``).
@@ -140,7 +140,7 @@ class StaticMeans:
 
 @dataclass
 class RotationMeans:
-    """Whole-revolution means of rotation segments (seed 000 eqs. 21-23).
+    """Whole-revolution means of rotation segments (Liu 2021 eqs. 21-23).
 
     ``means`` (J, 3) [output_unit]; ``sigma`` (J, 3); ``axis`` (J, 3) unit vector in the body frame;
     ``rate_deg_s`` (J,) signed by the right-hand rule about ``axis``; ``revolutions`` (J,) whole turns
@@ -174,7 +174,7 @@ class RotationMeans:
 
     def mean_inputs(self):
         """Mean body-frame input over whole revolutions [input_unit]: table rate + the Earth-rate component
-        along the axis (the perpendicular part averages to zero, seed 000 eq. 23). Needs ``attitude``."""
+        along the axis (the perpendicular part averages to zero, Liu 2021 eq. 23). Needs ``attitude``."""
         if self.attitude is None:
             raise SegmentError(f"{self.source or 'rotations'}: no nominal attitude for the rotation segments - the "
                                "Earth-rate component along the rotation axis is unknown; add nominal_attitude")
@@ -186,7 +186,7 @@ class RotationMeans:
 
 @dataclass
 class RotationPairs:
-    """Matched + / - rotations about the same axis (seed 000 eqs. 23-26).
+    """Matched + / - rotations about the same axis (Liu 2021 eqs. 23-26).
 
     ``plus``/``minus`` (J, 3) whole-revolution means; ``sigma_plus``/``sigma_minus``; ``axis`` (J, 3) body frame;
     ``rate_plus``/``rate_minus`` (J,) signed deg/s about ``axis``; ``attitude`` C_b^n of the + segment;
@@ -218,16 +218,16 @@ class RotationPairs:
         return self.plus.shape[0]
 
     def difference(self):
-        """N+ - N- (J, 3) and its sigma (seed 000 eq. 25 numerators); the bias cancels."""
+        """N+ - N- (J, 3) and its sigma (Liu 2021 eq. 25 numerators); the bias cancels."""
         return self.plus - self.minus, np.hypot(self.sigma_plus, self.sigma_minus)
 
     def delta_input(self):
-        """Input difference (J, 3) [input_unit]: (r+ - r-) * axis = 2 omega_0^b of seed 000 eq. 26."""
+        """Input difference (J, 3) [input_unit]: (r+ - r-) * axis = 2 omega_0^b of Liu 2021 eq. 26."""
         d = (self.rate_plus - self.rate_minus)[:, None] * math.radians(1.0) * self.axis
         return to_input_unit(d, self.input_unit)
 
     def pair_mean(self):
-        """(N+ + N-)/2 (J, 3) and its sigma: K E (mean input) + b (seed 000 eqs. 23 + 24)."""
+        """(N+ + N-)/2 (J, 3) and its sigma: K E (mean input) + b (Liu 2021 eqs. 23 + 24)."""
         return 0.5 * (self.plus + self.minus), 0.5 * np.hypot(self.sigma_plus, self.sigma_minus)
 
     def mean_input(self):
@@ -514,7 +514,7 @@ def require_positions(static: StaticMeans, needed: int, what: str):
     if static.n < needed:
         raise SegmentError(f"{static.source or static.sensor}: {what} needs at least {needed} static positions "
                            f"with different orientations, found {static.n} - record more positions "
-                           "(seed 000 uses 24)")
+                           "(Liu 2021 uses 24)")
 
 
 @dataclass
@@ -562,7 +562,7 @@ def vertical_axis_attitude(axis_b):
 
 def synthetic_static(model, attitudes, sigma, rng, *, sensor: str, latitude_deg: float = 39.98,
                      duration_s: float = 60.0) -> StaticMeans:
-    """Static means N_m = K E x_m + b + noise at nominal attitudes C_b^n (closed form, seed 000 eqs. 1-4).
+    """Static means N_m = K E x_m + b + noise at nominal attitudes C_b^n (closed form, Liu 2021 eqs. 1-4).
 
     x_m = C_n^b (0, 0, g) (accel, g = WGS-84 normal gravity in the model's input unit) or C_n^b omega_ie^n
     (gyro). ``sigma`` (scalar, (3,) or (M, 3)) in the output unit; noise N(0, sigma^2) from ``rng``
@@ -586,7 +586,7 @@ def synthetic_pairs(model, axes, rates_deg_s, sigma, rng, *, latitude_deg: float
                     duration_s: float = 36.0) -> RotationPairs:
     """Whole-revolution means of + and - rotations about body ``axes`` (J, 3) at ``rates_deg_s`` (J,) with the
     rotation axis vertical (turntable): mean input = table rate x axis + Earth rate along the axis
-    (Omega sin(lat)), seed 000 eqs. 23-24. Noise N(0, sigma^2) from ``rng`` (None: noise-free)."""
+    (Omega sin(lat)), Liu 2021 eqs. 23-24. Noise N(0, sigma^2) from ``rng`` (None: noise-free)."""
     axes = np.asarray(axes, dtype=float)
     axes = axes / np.linalg.norm(axes, axis=1, keepdims=True)
     rates = np.asarray(rates_deg_s, dtype=float)

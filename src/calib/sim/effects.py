@@ -8,7 +8,7 @@ diagnosis stage. Two kinds:
 * ``sensor`` effects add terms to the per-sensor inputs before the scale factors:
   ``apply(ctx: SensorContext, params) -> (d_accel [g] (n, 3) | None, d_gyro [deg/h] (n, 3) | None)``.
 
-Sensor model with effects (sensor axis i; seed 000 eqs. 1-4 plus the terms of this module)::
+Sensor model with effects (sensor axis i; Liu 2021 eqs. 1-4 plus the terms of this module)::
 
     y   = E x                                   input along the sensor axes (g or deg/h)
     N_i = K_i (y_i + sum_effects d_i + bias_instability_i + noise_i) + b_i        [count s-1]
@@ -36,7 +36,7 @@ gyro_g_sensitivity             sum_j G_ij f_j  (body-frame specific force in g) 
 gyro_scale_asymmetry           d_i |y_i|                                                         asym_ppm (ppm)
 gyro_scale_nonlinearity        k_i y_i |y_i| / w_ref,  w_ref = 1 deg/s = 3600 deg/h (scale       k_ppm_per_deg_s (ppm per deg/s)
                                factor grows linearly with |rate|; odd, so it survives the +/-
-                               difference of seed 000 eq. 25 and differs between 10/20/30 deg/s)
+                               difference of Liu 2021 eq. 25 and differs between 10/20/30 deg/s)
 bias_drift                     A_i exp(-t / tau) + s_i t / 3600  per triad (warm-up + trend)      accel_warmup_ug (ug), accel_tau_s,
                                                                                                  accel_trend_ug_per_h (ug/h), gyro_...
                                                                                                  (deg/h, s, deg/h per h)

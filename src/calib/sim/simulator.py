@@ -1,15 +1,15 @@
-"""Synthetic sessions of the seed-000 unit and the seed-001 stationary navigation data.
+"""Synthetic sessions of the Liu 2021 unit and the He 2019 stationary navigation data.
 
 Three generators, all deterministic functions of ``(cfg, seed)``:
 
-* :func:`simulate_calibration_session` — the seed-000 calibration path (24 static positions and the ±
+* :func:`simulate_calibration_session` — the Liu 2021 calibration path (24 static positions and the ±
   rotation windows, :mod:`calib.sim.trajectory`) as a ``calib-recording-1`` file of integer pulse counts.
-* :func:`simulate_static_session` mode ``physical`` — seed 001 §IV.A: a stationary unit, increments
+* :func:`simulate_static_session` mode ``physical`` — He 2019 §IV.A: a stationary unit, increments
   dtheta [rad] and dv [m/s] (float64), constant gyro drift, gyro random walk, accelerometer bias.
 * :func:`simulate_static_session` mode ``counts`` — the calibration unit (same :class:`TriadModel` pair,
-  noise model, effects and quantisation) at rest, for seed 000's static navigation check (§4).
+  noise model, effects and quantisation) at rest, for Liu 2021's static navigation check (§4).
 
-Sensor output (seed 000 eqs. 1-4, with the terms of :mod:`calib.sim.effects`), sensor axis i::
+Sensor output (Liu 2021 eqs. 1-4, with the terms of :mod:`calib.sim.effects`), sensor axis i::
 
     N_i(t) = K_i (y_i(t) + d_i(t) + beta_i(t) + n_i(t)) + b_i          [count s-1]
     y      = E x,  x = f^b / g0 [g]  (accel)  or  omega_ib^b [deg/h]  (gyro)
@@ -68,7 +68,7 @@ from calib.sim import effects
 from calib.io import recording
 from calib.io.netcdf import provenance
 from calib.io.recording import STANDARD_GRAVITY
-from calib.core.triad import OFFDIAG, PARAM_NAMES, TriadModel, seed000_model
+from calib.core.triad import OFFDIAG, PARAM_NAMES, TriadModel, liu2021_model
 from calib.sim.trajectory import (Trajectory, calibration_plan, plan_duration, recorded_segments,
                          sample_segment_index, segment_table)
 from calib.core.rotations import euler_to_dcm
@@ -80,7 +80,7 @@ STREAM_COUNTS, STREAM_INIT, STREAM_PHYSICAL_GYRO, STREAM_PHYSICAL_ACCEL = 1, 2, 
 INT32_MAX = 2**31 - 1
 #: sensor effects whose terms change with time at constant inputs
 TIME_DEPENDENT_EFFECTS = {"bias_drift", "temperature_sensitivity"}
-SENSOR_NAME = "seed000 synthetic nav-grade unit"
+SENSOR_NAME = "liu2021 synthetic nav-grade unit"
 TRUTH_FORMAT = "calib-truth-1"
 
 NOISE_DEFAULTS = {
@@ -106,7 +106,7 @@ CALIBRATION_DEFAULTS = {
     "rotation_axes": "vertical",
     "transition_s": [2.0, 3.0],
     "move_rate_deg_s": 20.0,
-    "sensor": "seed000",
+    "sensor": "liu2021",
     "noise": {},
     "effects": {},
     "conceal": False,
@@ -125,7 +125,7 @@ STATIC_PHYSICAL_DEFAULTS = {
 }
 STATIC_COUNTS_DEFAULTS = {
     **STATIC_COMMON,
-    "sensor": "seed000",
+    "sensor": "liu2021",
     "noise": {},
     "effects": {},
     "conceal": False,
@@ -172,20 +172,20 @@ def _vec(v, name, shape=(3,)):
     return a
 
 
-def sensor_models(sensor_cfg="seed000", where: str = "sensor") -> tuple[TriadModel, TriadModel]:
+def sensor_models(sensor_cfg="liu2021", where: str = "sensor") -> tuple[TriadModel, TriadModel]:
     """True accelerometer and gyro models.
 
-    ``'seed000'`` (seed 000 Tables 1 and 3 "separate calibration results") or a mapping
+    ``'liu2021'`` (Liu 2021 Tables 1 and 3 "separate calibration results") or a mapping
     ``{accel: {...}, gyro: {...}}`` overriding parts of it: ``K`` (3,) [count s-1 per input unit], ``b`` (3,)
     [count s-1], ``E`` (3x3 with unit diagonal, or the 6 off-diagonal terms in the order
     Exy Exz Eyx Eyz Ezx Ezy), or ``vector`` (the 12 parameters in :data:`calib.core.triad.PARAM_NAMES` order).
     Input units: accel g (9.80665 m/s^2), gyro deg/h.
     """
-    acc, gyr = seed000_model("accel"), seed000_model("gyro")
-    if sensor_cfg in (None, "seed000"):
+    acc, gyr = liu2021_model("accel"), liu2021_model("gyro")
+    if sensor_cfg in (None, "liu2021"):
         return acc, gyr
     if not isinstance(sensor_cfg, dict):
-        raise SimConfigError(f"{where}: expected 'seed000' or a mapping with accel/gyro overrides, got {sensor_cfg!r}")
+        raise SimConfigError(f"{where}: expected 'liu2021' or a mapping with accel/gyro overrides, got {sensor_cfg!r}")
     extra = set(sensor_cfg) - {"accel", "gyro"}
     if extra:
         raise SimConfigError(f"{where}: unknown key(s) {', '.join(sorted(extra))}; allowed: accel, gyro")
@@ -212,7 +212,7 @@ def sensor_models(sensor_cfg="seed000", where: str = "sensor") -> tuple[TriadMod
                 e = full
             e = _vec(e, f"{where}.{name}.E", (3, 3))
             if not np.allclose(np.diag(e), 1.0):
-                raise SimConfigError(f"{where}.{name}.E: diagonal must be 1 (seed 000 eq. 2), got {np.diag(e)}")
+                raise SimConfigError(f"{where}.{name}.E: diagonal must be 1 (Liu 2021 eq. 2), got {np.diag(e)}")
             m.E = e
         if abs(np.linalg.det(m.KE)) < 1e-12 * np.prod(np.abs(m.K)):
             raise SimConfigError(f"{where}.{name}: K E is singular")
@@ -515,7 +515,7 @@ def _recording_attrs(sim_cfg: dict, eff: dict, quantize: bool, extra: dict | Non
     attrs = {
         "body_frame": "right-front-up",
         "navigation_frame": "ENU",
-        "sensor_model": "N = K E x + b (seed 000 eqs. 1-4); output rate in count s-1",
+        "sensor_model": "N = K E x + b (Liu 2021 eqs. 1-4); output rate in count s-1",
         "accel_input_unit": "g",
         "gyro_input_unit": "deg h-1",
         "output_rate_unit": "count s-1",
@@ -531,7 +531,7 @@ def _recording_attrs(sim_cfg: dict, eff: dict, quantize: bool, extra: dict | Non
 
 
 def simulate_calibration_session(cfg: dict, seed: int, out_path, truth_path=None, prov=None) -> Path:
-    """Simulate the seed-000 calibration session and write it as a ``calib-recording-1`` file.
+    """Simulate the Liu 2021 calibration session and write it as a ``calib-recording-1`` file.
 
     ``cfg``: see :data:`CALIBRATION_DEFAULTS` (the ``calibration_session`` section plus ``site``).
     Output: accel/gyro int32 counts per sample (``sample_kind='increment'``, ``units='count'``),
@@ -621,7 +621,7 @@ def simulate_static_session(cfg: dict, seed: int, out_path, truth_path=None, pro
 
     ``cfg['mode']``:
 
-    * ``'physical'`` (default; seed 001 §IV.A) keys :data:`STATIC_PHYSICAL_DEFAULTS`: increments
+    * ``'physical'`` (default; He 2019 §IV.A) keys :data:`STATIC_PHYSICAL_DEFAULTS`: increments
       ``dtheta = (C_n^b omega_ie^n + drift) dt + noise`` [rad] and ``dv = (C_n^b (0, 0, gamma) + bias) dt +
       noise`` [m/s], float64. Gyro noise ``model: arw`` — angle random walk ``arw_deg_rth`` [deg/sqrt(h)],
       per-sample sigma ``arw/60 sqrt(dt)`` deg; ``model: white`` — white rate noise of sigma ``white_deg_h``
@@ -697,12 +697,12 @@ def _static_physical(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cb
     sig_a = vrw * 1e-6 * STANDARD_GRAVITY * math.sqrt(dt)  # m/s per sample
     normals_g = _BlockNormals(seed, STREAM_PHYSICAL_GYRO, 3)
     normals_a = _BlockNormals(seed, STREAM_PHYSICAL_ACCEL, 3) if sig_a > 0 else None
-    attrs = {"session": "stationary navigation (seed 001 IV.A)", "body_frame": "right-front-up",
+    attrs = {"session": "stationary navigation (He 2019 IV.A)", "body_frame": "right-front-up",
              "navigation_frame": "ENU", "attitude_pitch_deg": att["pitch"], "attitude_roll_deg": att["roll"],
              "attitude_yaw_deg": att["yaw"]}
     with recording.LongRecordingWriter(out_path, n, fs, latitude_deg=lat, height_m=h, accel_units="m s-1",
                                        gyro_units="rad", accel_kind="increment", gyro_kind="increment",
-                                       dtype="f8", source="synthetic", sensor="seed 001 simulated stationary INS",
+                                       dtype="f8", source="synthetic", sensor="He 2019 simulated stationary INS",
                                        extra_attrs=attrs, chunk_samples=min(chunk, 262144)) as w:
         for i0 in range(0, n, chunk):
             i1 = min(n, i0 + chunk)

@@ -1,16 +1,16 @@
-"""Calibration path plan (seed 000 §2.2 and §3.3) and the exact true kinematics of the turntable.
+"""Calibration path plan (Liu 2021 §2.2 and §3.3) and the exact true kinematics of the turntable.
 
 Frames
 ------
 * ``n``: local-level navigation frame East-North-Up (ENU).
-* ``b``: body frame of the IMU, right-front-up (seed 000 §2.1).
+* ``b``: body frame of the IMU, right-front-up (Liu 2021 §2.1).
 * ``C_b^n`` maps body vectors to ENU. A table rotation by angle ``theta`` about a *body* axis ``u``
   right-multiplies the attitude: ``C_b^n(t) = C_b^n(t0) R_u(theta(t))``, with ``R_u`` the active
   right-handed rotation (Rodrigues).
 
 The path
 --------
-Static positions of seed 000 §2.2 (three phases of ``positions_per_phase`` positions ``step_deg`` apart):
+Static positions of Liu 2021 §2.2 (three phases of ``positions_per_phase`` positions ``step_deg`` apart):
 
 * phase 1: body x north, z up at POS1 (so y west); POS k = POS1 rotated by ``(k-1) step`` about body x;
 * phase 2: body y north, x up at POS1 (z west); rotations about body y;
@@ -18,9 +18,9 @@ Static positions of seed 000 §2.2 (three phases of ``positions_per_phase`` posi
 
 The phase axis points north throughout its phase. Labels ``P1-POS3`` etc.
 
-Rotation windows of seed 000 §3.3 (supplementary gyro path): for each body axis a in x, y, z, for each
+Rotation windows of Liu 2021 §3.3 (supplementary gyro path): for each body axis a in x, y, z, for each
 rate in ``rotation_rates_deg_s``, a positive then a negative constant-rate rotation of ``revolutions``
-whole turns about body axis a held vertical (up). The start attitude of a window makes seed 000 eq. (21)
+whole turns about body axis a held vertical (up). The start attitude of a window makes Liu 2021 eq. (21)
 hold literally: for z the body axes are along E, N, U (``omega^b = R_z(wt)^T (0, W cos L, w + W sin L)``);
 for x and y the cyclic permutations (x up, y east, z north; y up, z east, x north). Labels
 ``ROT-z+10`` / ``ROT-z-10``. With ``rotation_axes='vertical+horizontal'`` the same windows follow
@@ -51,7 +51,7 @@ For a table fixed on the rotating Earth at rest (no translation), at a point on 
 ``accel_lever_arm`` effect of :mod:`calib.sim.effects`.)
 
 Table angle: the angle [deg] about the current primitive's axis. It restarts at 0 at the start of every
-static and rotation segment (so in a rotation window it is ``rate (t - t_start)``, unwrapped, as in seed 000
+static and rotation segment (so in a rotation window it is ``rate (t - t_start)``, unwrapped, as in Liu 2021
 eq. 21) and accumulates across consecutive transition primitives about the same axis (e.g. the
 spin-down continues from ``revolutions * 360``); it restarts when the axis changes.
 """
@@ -118,7 +118,7 @@ def phase_start_attitude(axis: int) -> np.ndarray:
     """C_b^n of POS1 of the phase whose table axis is body ``axis`` (0=x, 1=y, 2=z).
 
     Body ``axis`` north, the next axis (cyclically) west, the one after up: phase 1 x-N/y-W/z-U,
-    phase 2 y-N/z-W/x-U, phase 3 z-N/x-W/y-U (seed 000 §2.2).
+    phase 2 y-N/z-W/x-U, phase 3 z-N/x-W/y-U (Liu 2021 §2.2).
     """
     c = np.zeros((3, 3))
     c[:, axis] = _NORTH
@@ -128,7 +128,7 @@ def phase_start_attitude(axis: int) -> np.ndarray:
 
 
 def vertical_rotation_attitude(axis: int) -> np.ndarray:
-    """C_b^n at the start of a rotation window about body ``axis`` held up (seed 000 eq. 21).
+    """C_b^n at the start of a rotation window about body ``axis`` held up (Liu 2021 eq. 21).
 
     Body ``axis`` up, the next axis east, the one after north (z: x-E/y-N/z-U, i.e. C = I).
     """
@@ -229,15 +229,15 @@ class _Builder:
 def calibration_plan(step_deg=45.0, positions_per_phase=8, dwell_s=60.0, rotation_rates_deg_s=(10.0, 20.0, 30.0),
                      revolutions=2, rotation_axes="vertical", transition_s=(2.0, 3.0), move_rate_deg_s=20.0,
                      time_grid_s=None) -> list[Segment]:
-    """The seed-000 calibration path as a list of :class:`Segment` primitives (see module doc).
+    """The Liu 2021 calibration path as a list of :class:`Segment` primitives (see module doc).
 
     Parameters
     ----------
     step_deg : angle between consecutive positions of a phase [deg], right-hand rule about the phase axis.
-    positions_per_phase : positions per phase (seed 000: 8).
-    dwell_s : rest time of each static position [s] (seed 000: "around 1 minute").
+    positions_per_phase : positions per phase (Liu 2021: 8).
+    dwell_s : rest time of each static position [s] (Liu 2021: "around 1 minute").
     rotation_rates_deg_s : magnitudes of the constant table rates of the rotation windows [deg/s]
-        (seed 000 §3.3: 10, 20, 30); empty for no rotation windows.
+        (Liu 2021 §3.3: 10, 20, 30); empty for no rotation windows.
     revolutions : whole revolutions per rotation window.
     rotation_axes : ``'vertical'`` or ``'vertical+horizontal'``.
     transition_s : ``(t_ramp, t_settle)`` [s]: duration of every rate ramp (spin-up/down, move

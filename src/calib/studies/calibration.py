@@ -1,4 +1,4 @@
-"""Seed 000 study on one calibration session: noise, repeated identifications per method, Tables 2, 4, 5,
+"""Liu et al. (2021) study on one calibration session: noise, repeated identifications per method, Tables 2, 4, 5,
 Figures 2-6 and 8, identifiability, and the project's default calibration for navigation.
 
 Called by the workflow rules of ``workflow/rules/calibration.smk`` and by ``calib calibrate``.
@@ -26,7 +26,7 @@ from calib.io.netcdf import write_netcdf
 from calib.core.progress import Progress
 from calib.core.triad import PARAM_NAMES, TriadModel
 
-#: how the DE variants of seed 000 map to the figures
+#: how the DE variants of Liu 2021 map to the figures
 FIGURE_OF = {"de_rand1": 2, "de_current_to_best1": 3, "de_integration": 4, "ide": 5}
 PAPER_TABLE2 = {"de_rand1": (0.045558, 0.015841), "de_integration": (0.008171, 6.1852e-04), "ide": (0.004854, 8.5377e-04)}
 PAPER_TABLE4 = {"static": (0.4935, 4.0192e-06), "dynamic": (0.003075, 7.8156e-04)}
@@ -87,7 +87,7 @@ def _run_dataset(results, L, hist, x, names, sensor, method, objective, truth=No
 
 def _problem(inp, key, method, rng, budget, opts):
     """One identification: 'accel' (paper's 12-parameter norm, eq. 7), 'gyro_static' (L_g, eq. 7) or
-    'gyro_dynamic' (L_gm of eq. 26, then the biases by eq. 7 with K, E held; seed 000 §3.3)."""
+    'gyro_dynamic' (L_gm of eq. 26, then the biases by eq. 7 with K, E held; Liu 2021 §3.3)."""
     if key == "accel":
         return cal.norm_calibration(inp.accel_static, form="paper12", method=method, rng=rng, budget=budget, **opts)
     if key == "gyro_static":
@@ -136,7 +136,7 @@ def _map_tasks(inp, ccfg, tasks, workers, progress):
 
 def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=None, log=print, workers: int = 1,
               noise_record=None):
-    """The whole seed-000 calibration study on one session. ``noise_record``: path of a long static recording
+    """The whole Liu 2021 calibration study on one session. ``noise_record``: path of a long static recording
     of the same unit (the slow noise of the default calibration's segment means, :func:`noise_models`), or
     None. Writes into ``out_dir``:
 
@@ -193,13 +193,13 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     for m, fig_no in FIGURE_OF.items():
         if ("accel", m) in runs:
             _fig_history(out / "figures" / f"figure{fig_no}_accel_{m}.png", runs[("accel", m)][2],
-                         f"Seed 000 Fig. {fig_no}: accelerometer, {m}", "L_a (eq. 7) [g²]")
+                         f"Liu et al. (2021) Fig. {fig_no}: accelerometer, {m}", "L_a (eq. 7) [g²]")
     if ("gyro_static", "ide") in runs:
         _fig_history(out / "figures" / "figure6_gyro_static_ide.png", runs[("gyro_static", "ide")][2],
-                     "Seed 000 Fig. 6: gyro, static path, IDE", "L_g (eq. 7) [(°/h)²]")
+                     "Liu et al. (2021) Fig. 6: gyro, static path, IDE", "L_g (eq. 7) [(°/h)²]")
     if ("gyro_dynamic", "ide") in runs:
         _fig_history(out / "figures" / "figure8_gyro_dynamic_ide.png", runs[("gyro_dynamic", "ide")][2],
-                     "Seed 000 Fig. 8: gyro, dynamic path (eq. 26), IDE", "L_gm (eq. 26), relative")
+                     "Liu et al. (2021) Fig. 8: gyro, dynamic path (eq. 26), IDE", "L_gm (eq. 26), relative")
 
     # ---- identifiability and the default calibration ----
     t = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Seed 001 study: 50 PSOBE tests, Table 1, Figures 2-4, the noise limit and the baselines.
+"""He et al. (2019) study: 50 PSOBE tests, Table 1, Figures 2-4, the noise limit and the baselines.
 
 Called by the workflow rules ``drift_pso`` and ``drift_validation`` and by ``calib drift``.
 """
@@ -23,7 +23,7 @@ from calib.io.netcdf import write_netcdf
 from calib.core.progress import Progress
 
 AXES = ["x", "y", "z"]
-#: seed 001 Table 1 (PSOBE, 50 tests) and its Ac values (§IV.A), for comparison
+#: He 2019 Table 1 (PSOBE, 50 tests) and its Ac values (§IV.A), for comparison
 PAPER_TABLE1 = {"max": [-0.01032, 0.01077, 0.01079], "min": [-0.01048, 0.01067, 0.009786],
                 "mean": [-0.01038, 0.01073, 0.01046], "std": [3.39e-5, 1.735e-5, 1.913e-4],
                 "Ac_pct": [96.2, 92.7, 95.4]}
@@ -122,7 +122,7 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
     ds = xr.Dataset(
         {
             "estimate": (("test", "axis"), est, {"units": "deg h-1", "long_name": "PSOBE gyro-drift estimate"}),
-            "J_history": (("test", "generation"), hist, {"units": "J of seed 001 eq. 18",
+            "J_history": (("test", "generation"), hist, {"units": "J of He 2019 eq. 18",
                                                          "long_name": "J of the global best per generation"}),
             "pinned": (("test", "axis"), pinned.astype(np.int8), {"long_name": "best particle on a range bound"}),
             "truth": (("axis",), truth, {"units": "deg h-1"}),
@@ -186,7 +186,7 @@ def _fig2(path, est, truth, crb):
         ax.set_ylabel(f"ε_{AXES[i]} [°/h]")
     axs[0].legend(fontsize=7, loc="best")
     axs[-1].set_xlabel("test")
-    fig.suptitle("Seed 001 Fig. 2: gyro drift estimated in each PSOBE test")
+    fig.suptitle("He et al. (2019) Fig. 2: gyro drift estimated in each PSOBE test")
     fig.tight_layout()
     figures.save(fig, path)
 
@@ -198,7 +198,7 @@ def _fig3(path, hist, unit):
     ax.semilogy(np.arange(len(hist)), hist, "o-", ms=3)
     ax.set_xlabel("generation")
     ax.set_ylabel(f"J of eq. 18 (position in {unit})")
-    ax.set_title("Seed 001 Fig. 3: J of the global best, test 1")
+    ax.set_title("He et al. (2019) Fig. 3: J of the global best, test 1")
     fig.tight_layout()
     figures.save(fig, path)
 
@@ -206,7 +206,7 @@ def _fig3(path, hist, unit):
 def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: dict, site: dict, nav: dict,
                    dcfg: dict, prov=None, log=print, chunk=2_000_000):
     """Navigate the whole recording (240 h) without and with compensation by the mean PSOBE estimate (and by
-    the Kalman baseline), in one streamed pass with three streams; seed 001 Figure 4."""
+    the Kalman baseline), in one streamed pass with three streams; He 2019 Figure 4."""
     with xr.open_dataset(pso_nc, engine="netcdf4") as p:
         mean_est = p["estimate"].values.mean(0)
         kal = p["baseline"].sel(estimator="kalman").values
@@ -307,7 +307,7 @@ def _fig4(path, ds):
     for ax in axs[-1]:
         ax.set_xlabel("time [h]")
     axs[2, 1].set_xlabel("time [h]")
-    fig.suptitle("Seed 001 Fig. 4: navigation errors with and without drift compensation")
+    fig.suptitle("He et al. (2019) Fig. 4: navigation errors with and without drift compensation")
     fig.tight_layout()
     figures.save(fig, path)
 

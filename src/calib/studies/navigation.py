@@ -1,4 +1,4 @@
-"""Seed 000 §4 static-navigation check (Figure 10): navigate a static recording of the calibrated unit with
+"""Liu et al. (2021) §4 static-navigation check (Figure 10): navigate a static recording of the calibrated unit with
 the parameters identified by each method, and the project's ``calib navigate`` stage.
 """
 from __future__ import annotations
@@ -43,7 +43,7 @@ def method_calibrations(cal_dir, methods):
 
 
 def run_static_check(recording_path, cal_dir, out_nc, fig, metrics_path, check: dict, nav: dict, prov=None, log=print):
-    """Seed 000 Figure 10: east/north velocity and latitude/longitude errors of the static navigation with each
+    """Liu et al. (2021) Figure 10: east/north velocity and latitude/longitude errors of the static navigation with each
     method's parameters, initial position and attitude known (the paper's 'download' of initial values)."""
     methods = list(check["methods"])
     if "default" not in methods:
@@ -60,7 +60,7 @@ def run_static_check(recording_path, cal_dir, out_nc, fig, metrics_path, check: 
         log(f"{notes[m]}: max |vE| {float(np.abs(ds['vE_err']).max()):.3f} m/s, "
             f"max |vN| {float(np.abs(ds['vN_err']).max()):.3f} m/s")
     res = xr.concat(parts, dim="calibration")
-    res.attrs.update({"initial_condition": "true position and attitude (seed 000 §4.2)",
+    res.attrs.update({"initial_condition": "true position and attitude (Liu 2021 §4.2)",
                       "vertical_channel": "held", "methods": json.dumps(notes)})
     write_netcdf(res, out_nc, prov)
     _fig10(fig, res)
@@ -87,7 +87,7 @@ def _fig10(path, res):
     for ax in axs[-1]:
         ax.set_xlabel("time [h]")
     axs[0, 0].legend(fontsize=7)
-    fig.suptitle("Seed 000 Fig. 10: static navigation with each method's calibration (true initial state)")
+    fig.suptitle("Liu et al. (2021) Fig. 10: static navigation with each method's calibration (true initial state)")
     fig.tight_layout()
     figures.save(fig, path)
 

@@ -21,7 +21,7 @@ def _site(site):
 
 
 def simulate_calibration(session: dict, site: dict, seed: int, out, truth, rule="cli"):
-    """Data stage: the seed-000 calibration session (24 positions + ± rotations)."""
+    """Data stage: the Liu 2021 calibration session (24 positions + ± rotations)."""
     from calib.sim import simulator as simulate
 
     cfg = {k: session[k] for k in CAL_SESSION_KEYS if k in session}
@@ -32,7 +32,7 @@ def simulate_calibration(session: dict, site: dict, seed: int, out, truth, rule=
 
 
 def simulate_static_check(check: dict, session: dict, site: dict, seed: int, out, truth, rule="cli"):
-    """Data stage: a static recording (counts) of the calibrated unit for seed 000's navigation check."""
+    """Data stage: a static recording (counts) of the calibrated unit for Liu 2021's navigation check."""
     from calib.sim import simulator as simulate
     from calib.core.progress import Progress
 
@@ -45,7 +45,7 @@ def simulate_static_check(check: dict, session: dict, site: dict, seed: int, out
 
 
 def simulate_navigation(session: dict, site: dict, seed: int, out, truth, rule="cli"):
-    """Data stage: seed 001 §IV.A stationary navigation data (physical increments, chunked)."""
+    """Data stage: He 2019 §IV.A stationary navigation data (physical increments, chunked)."""
     from calib.sim import simulator as simulate
     from calib.core.progress import Progress
 

@@ -17,13 +17,13 @@ one simulated recording (a second Paramspace over those columns).
 
 Kinds and what one point computes:
 
-* ``calibration`` (seed 000): ``runs`` identifications of one problem (``accel``: L_a of eq. 7 in the
+* ``calibration`` (Liu 2021): ``runs`` identifications of one problem (``accel``: L_a of eq. 7 in the
   paper's 12-parameter form; ``gyro_static``: L_g of eq. 7; ``gyro_dynamic``: L_gm of eq. 26, then the biases)
   with one optimiser (population NP, EG generations; optimiser run r uses seed ``seeds.calibration + r``);
   L* = the best of 10 multi-start least-squares fits and of the runs; success: L <= (1 + tol) L*
   (``calibration.success_rel_tol``, the rule of Table 5). Error of the identified (K E)(K E)^T (what the
   norm determines) and of the biases against the simulated truth.
-* ``drift_pso`` (seed 001): ``tests`` PSOBE runs (test k uses seed ``seeds.drift + k``) on the first
+* ``drift_pso`` (He 2019): ``tests`` PSOBE runs (test k uses seed ``seeds.drift + k``) on the first
   ``window_h`` hours; the Cramer-Rao bound of the drift for that window and noise; the minimiser of J (eq. 18)
   over the PSO search box (a linear programme on the linearised navigation errors, :func:`argmin_J`), so the
   error of a PSO estimate splits into the optimiser's part (estimate - argmin J) and the estimator's
@@ -343,7 +343,7 @@ def _problem_fn(inp, problem):
 
 
 def calibration_point(recording_path, truth_path, cfg: dict, log=print):
-    """``runs`` identifications of one seed-000 problem with one optimiser; see the module docstring."""
+    """``runs`` identifications of one Liu 2021 problem with one optimiser; see the module docstring."""
     import warnings
 
     import xarray as xr
@@ -405,7 +405,7 @@ def calibration_point(recording_path, truth_path, cfg: dict, log=print):
          "L_star": ((), L_star, {"long_name": "best of 10 multi-start least squares and the runs"}),
          "mean_L_over_L_star": ((), float(L.mean() / L_star) if L_star > 0 else math.nan),
          "on_bound": (("run",), on_bound, {"long_name": "a parameter ended on a search bound"}),
-         "estimate": (("run", "parameter"), x, {"long_name": "K, E, b (seed 000 eq. 8) as identified"}),
+         "estimate": (("run", "parameter"), x, {"long_name": "K, E, b (Liu 2021 eq. 8) as identified"}),
          "gram_rel_error": (("run",), gram_err, {"long_name": "max |(KE)(KE)^T - truth| / max |truth|"}),
          "bias_error": (("run", "axis"), bias_err, {"units": unit}),
          "history": (("run", "generation"), hist, {"long_name": "best L per generation"})},
@@ -455,7 +455,7 @@ def drift_point(recording_path, cfg: dict, log=print):
     d = {"units": "deg h-1"}
     return xr.Dataset(
         {"estimate": (("test", "axis"), est, {**d, "long_name": "PSOBE gyro-drift estimate"}),
-         "J": (("test",), J, {"long_name": "J (seed 001 eq. 18) at the estimate"}),
+         "J": (("test",), J, {"long_name": "J (He 2019 eq. 18) at the estimate"}),
          "J_history": (("test", "generation"), hist, {"long_name": "J of the global best per generation"}),
          "pinned": (("test", "axis"), pinned, {"long_name": "best particle on a range bound"}),
          "truth": (("axis",), truth, d),
@@ -474,7 +474,7 @@ def drift_point(recording_path, cfg: dict, log=print):
 
 
 def argmin_J(cost, lower: float, upper: float, step_deg_h: float = 0.01):
-    """Minimiser of J (seed 001 eq. 18) over the search box [lower, upper]^3 deg/h.
+    """Minimiser of J (He 2019 eq. 18) over the search box [lower, upper]^3 deg/h.
 
     The navigation errors of a stationary window are linear in the drift compensation c (the premise of
     :func:`calib.drift.psobe.linear_lsq`): e(c) = e0 + H c, with H from one navigation run per axis (step
