@@ -56,7 +56,9 @@ from pathlib import Path
 import numpy as np
 from scipy import linalg, optimize, stats
 
+from calib.calibration.ellipsoid import fit_ellipsoid
 from calib.diagnosis import signatures as sg
+from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
 from calib.io.recording import STANDARD_GRAVITY as STANDARD_GRAVITY_
 from calib.diagnosis.signatures import SENSORS, AXES, DiagnosisInputError
 
@@ -1314,58 +1316,6 @@ def analyse(prob: Problem) -> dict:
 # =====================================================================================================
 # report files
 # =====================================================================================================
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating,)):
-        v = float(o)
-        return v if math.isfinite(v) else None
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.bool_,)):
-        return bool(o)
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o)}")
-
-
-def _clean_json(o):
-    """Replace non-finite floats by None (strict JSON) recursively."""
-    if isinstance(o, dict):
-        return {str(k): _clean_json(v) for k, v in o.items() if not str(k).startswith("_")}
-    if isinstance(o, (list, tuple)):
-        return [_clean_json(v) for v in o]
-    if isinstance(o, (float, np.floating)):
-        v = float(o)
-        return v if math.isfinite(v) else None
-    if isinstance(o, np.ndarray):
-        return _clean_json(o.tolist())
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.bool_,)):
-        return bool(o)
-    return o
-
-
-def write_text_atomic(path, text: str) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
-def write_json_atomic(obj, path) -> Path:
-    return write_text_atomic(path, json.dumps(_clean_json(obj), indent=2, default=_json_default) + "\n")
-
-
 def _fmt(v, nd=4):
     if v is None:
         return "n/a"
@@ -1681,20 +1631,13 @@ NORM_EFFECTS = [("accel_quadratic_nonlinearity", [("k2_ug_per_g2", "vec")]),
 def _norm_initial(N, ref):
     """Lower-triangular M and b from an algebraic ellipsoid fit of the static means: (N - b)^T (M M^T)^-1 (N - b)
     = ref^2."""
-    c0 = N.mean(axis=0)
-    s0 = float(np.max(np.abs(N - c0))) or 1.0
-    z = (N - c0) / s0
-    x, y, w = z.T
-    A = np.column_stack([x * x, y * y, w * w, 2 * x * y, 2 * x * w, 2 * y * w, x, y, w])
-    coef, *_ = np.linalg.lstsq(A, np.ones(len(z)), rcond=None)
-    Qm = np.array([[coef[0], coef[3], coef[4]], [coef[3], coef[1], coef[5]], [coef[4], coef[5], coef[2]]])
-    c = -0.5 * np.linalg.solve(Qm, coef[6:9])
-    Qn = Qm / (1.0 + c @ Qm @ c)
-    if np.any(np.linalg.eigvalsh(Qn) <= 0):
+    fit = fit_ellipsoid(N)
+    if fit is None:
         raise DiagnosisInputError("the static means do not lie on an ellipsoid: the norm calibration failed",
                                   "record static positions spread over all orientations")
+    Qn, s0 = fit.Qn, fit.s0
     MMt = np.linalg.inv(Qn / s0**2 * ref**2)
-    return np.linalg.cholesky(MMt), c0 + s0 * c
+    return np.linalg.cholesky(MMt), fit.bias
 
 
 def setup_norm_problem(ds, settings=None) -> Problem:

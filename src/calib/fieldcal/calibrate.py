@@ -68,6 +68,7 @@ import numpy as np
 import xarray as xr
 from scipy.optimize import least_squares
 
+from calib.calibration.ellipsoid import fit_ellipsoid
 from calib.signal import detect
 from calib.core import earth
 from calib.io import recording
@@ -383,36 +384,19 @@ def _accel_jacobian(p, N, g):
 def ellipsoid_guess(means, g: float):
     """Initial 9 parameters from an algebraic ellipsoid fit to static means (>= 9, spread over orientations).
 
-    Fits ``z^T Q z + l^T z = 1`` to centred, scaled data by linear least squares, then takes the centre as the
-    bias and the upper-triangular Cholesky factor of the normalised ``Q`` as ``T_a K_a``. Returns None when
+    :func:`calib.calibration.ellipsoid.fit_ellipsoid`, then the centre as the bias and the upper-triangular
+    Cholesky factor of the normalised ``Q`` as ``T_a K_a``. Returns None when
     the quadric is not an ellipsoid (then use :func:`range_guess`).
     """
-    m = np.asarray(means, dtype=float)
-    c0 = m.mean(axis=0)
-    s0 = float(np.max(np.abs(m - c0))) or 1.0
-    z = (m - c0) / s0
-    x, y, w = z[:, 0], z[:, 1], z[:, 2]
-    A = np.column_stack([x * x, y * y, w * w, 2 * x * y, 2 * x * w, 2 * y * w, x, y, w])
-    try:
-        coef, *_ = np.linalg.lstsq(A, np.ones(len(z)), rcond=None)
-    except np.linalg.LinAlgError:
+    fit = fit_ellipsoid(means)
+    if fit is None:
         return None
-    Q = np.array([[coef[0], coef[3], coef[4]], [coef[3], coef[1], coef[5]], [coef[4], coef[5], coef[2]]])
-    lin = coef[6:9]
-    try:
-        c = -0.5 * np.linalg.solve(Q, lin)
-    except np.linalg.LinAlgError:
-        return None
-    rho = 1.0 + c @ Q @ c
-    Qn = Q / rho
-    if not np.all(np.isfinite(Qn)) or np.any(np.linalg.eigvalsh(Qn) <= 0):
-        return None
+    Qn, s0 = fit.Qn, fit.s0
     L = np.linalg.cholesky(Qn)  # Qn = L L^T, L lower -> R = L^T upper with R^T R = Qn
     R = L.T * (g / s0)
     k = np.diag(R).copy()
     T = R / k[None, :]
-    bias = c0 + s0 * c
-    return np.array([-T[0, 1], T[0, 2], -T[1, 2], k[0], k[1], k[2], *bias])
+    return np.array([-T[0, 1], T[0, 2], -T[1, 2], k[0], k[1], k[2], *fit.bias])
 
 
 def range_guess(samples, g: float):

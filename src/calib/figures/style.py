@@ -7,15 +7,14 @@ temporary name and renames.
 """
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+
+from calib.io.atomic import atomic_path  # noqa: E402
 
 STYLE = {
     "svg.hashsalt": "calib",
@@ -38,21 +37,10 @@ _META = {
 def save(fig, path) -> Path:
     """Save ``fig`` to ``path`` (format from the suffix) deterministically and atomically; closes it."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix.lower()
-    fd, tmp = tempfile.mkstemp(prefix="." + path.stem + ".", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    from calib.io.netcdf import _umask
-
-    os.chmod(tmp, 0o666 & ~_umask())
     try:
-        with plt.rc_context(STYLE):
+        with atomic_path(path, suffix=suffix) as tmp, plt.rc_context(STYLE):
             fig.savefig(tmp, format=suffix[1:], metadata=_META.get(suffix))
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
     finally:
         plt.close(fig)
     return path

@@ -2,8 +2,8 @@
 
 Every netCDF file the project writes goes through :func:`write_netcdf` (small products) or
 :class:`AtomicNetCDF` (long recordings written chunk by chunk). Both use the ``netcdf4`` engine and write
-to a temporary name in the target directory, renaming only when the file is complete, so a failure never
-leaves a half-written file under the final name.
+to a temporary name in the target directory (:mod:`calib.io.atomic`), renaming only when the file is
+complete, so a failure never leaves a half-written file under the final name.
 """
 from __future__ import annotations
 
@@ -12,27 +12,14 @@ import hashlib
 import json
 import os
 import subprocess
-import tempfile
 from pathlib import Path
 
 import netCDF4
 import xarray as xr
 
+from calib.io.atomic import atomic_path, temp_path
+
 ENGINE = "netcdf4"
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def _tmp_name(path: Path) -> Path:
-    """A unique temporary file beside ``path``, with the permissions a plain ``open`` would give."""
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
-    os.close(fd)
-    os.chmod(tmp, 0o666 & ~_umask())
-    return Path(tmp)
 
 
 def git_commit() -> str:
@@ -68,18 +55,11 @@ def provenance(rule: str = "", cfg=None, seed=None) -> dict:
 def write_netcdf(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
     """Write ``ds`` to ``path`` atomically (temporary name, then rename) with the fixed engine."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     ds = ds.copy()
     if prov:
         ds.attrs.update({k: v for k, v in prov.items() if v is not None})
-    tmp = _tmp_name(path)
-    try:
+    with atomic_path(path) as tmp:
         ds.to_netcdf(tmp, engine=ENGINE)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        raise
     return path
 
 
@@ -91,8 +71,7 @@ class AtomicNetCDF:
 
     def __init__(self, path):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = _tmp_name(self.path)
+        self.tmp = temp_path(self.path)
         self.nc = None
 
     def __enter__(self) -> netCDF4.Dataset:

@@ -52,10 +52,7 @@ an averaging time of about 1.9 T; the "bias instability" keys set s directly (th
 from __future__ import annotations
 
 import copy
-import json
 import math
-import os
-import tempfile
 import time as _time
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +63,7 @@ import numpy as np
 from calib.core import earth
 from calib.sim import effects
 from calib.io import recording
+from calib.io.atomic import write_json
 from calib.io.netcdf import provenance
 from calib.io.recording import STANDARD_GRAVITY
 from calib.core.triad import OFFDIAG, PARAM_NAMES, TriadModel, liu2021_model
@@ -265,30 +263,6 @@ def temperature_profile(t, prof: dict) -> np.ndarray:
     """Unit temperature [degC] at times ``t`` [s]: ``end + (start - end) exp(-t / tau)`` (warm-up)."""
     t = np.asarray(t, dtype=float)
     return prof["end_degC"] + (prof["start_degC"] - prof["end_degC"]) * np.exp(-np.maximum(t, 0.0) / prof["tau_s"])
-
-
-def _write_json_atomic(obj, path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(obj, fh, indent=2, sort_keys=False, default=_json_default)
-            fh.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
-
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    raise TypeError(f"not JSON serialisable: {type(o)}")
 
 
 def _model_json(m: TriadModel) -> dict:
@@ -565,7 +539,7 @@ def simulate_calibration_session(cfg: dict, seed: int, out_path, truth_path=None
         prov = provenance("simulate_calibration_session", cfg, seed)
     out = recording.write(ds, out_path, prov)
     if truth_path is not None:
-        _write_json_atomic(_truth_calibration(sim, time_s=_time.perf_counter() - t_wall), truth_path)
+        write_json(_truth_calibration(sim, time_s=_time.perf_counter() - t_wall), truth_path)
     return out
 
 
@@ -660,7 +634,7 @@ def simulate_static_session(cfg: dict, seed: int, out_path, truth_path=None, pro
         truth = _static_counts(c, seed, out_path, prov, progress, chunk_samples, lat, h, fs, n, cbn, att)
     truth["generation_time_s"] = _time.perf_counter() - t_wall
     if truth_path is not None:
-        _write_json_atomic(truth, truth_path)
+        write_json(truth, truth_path)
     return Path(out_path)
 
 

@@ -7,7 +7,6 @@ Scientific products (netCDF, CSV, figures) never hold wall times; those go to ``
 from __future__ import annotations
 
 import json
-import math
 import time
 from pathlib import Path
 
@@ -18,7 +17,6 @@ from calib.calibration import fit as cal
 from calib.figures import style as figures
 from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
-from calib.calibration import optimizers as opt
 from calib.signal import noisecov
 from calib.io import recording
 from calib.signal import segments

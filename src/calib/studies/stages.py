@@ -5,9 +5,7 @@ through ``print`` (the workflow sends it to the rule's log).
 """
 from __future__ import annotations
 
-import json
 import time
-from pathlib import Path
 
 from calib.io.netcdf import provenance
 
