@@ -2,7 +2,7 @@
 """Set up calib in its own virtual environment and run the study or the tests.
 
     python3 run.py study   # create .venv, install, run the full default study (config/config.yaml)
-    python3 run.py test    # create/reuse .venv, install, run pytest, snakemake --lint and the .test workflow
+    python3 run.py test    # create/reuse .venv, install, run pytest, the import-layer contract, snakemake --lint and the .test workflow
 
 Needs only Python >= 3.11 and pip. Extra arguments after the verb go to snakemake (study) or pytest (test).
 """
@@ -53,6 +53,7 @@ def main(argv):
     elif verb == "test":
         env = setup()
         sh(PY, "-m", "pytest", "-q", *rest, env=env)
+        sh(BIN / "lint-imports", env=env)  # the layer contract of pyproject.toml [tool.importlinter]
         sh(BIN / "snakemake", "--lint", "--configfile", ".test/config.yaml", env=env)
         sh(BIN / "snakemake", "--profile", "workflow/profiles/default", "--configfile", ".test/config.yaml",
            env=env)

@@ -17,7 +17,7 @@ from calib.sim import effects
 from calib.io import recording
 from calib.sim import simulator as simulate
 from calib.sim import trajectory
-from calib.io.recording import STANDARD_GRAVITY
+from calib.core.earth import STANDARD_GRAVITY
 from calib.core.triad import liu2021_model
 from calib.core.rotations import dcm_to_rotvec, euler_to_dcm, rot_x, rot_y, rot_z, rotvec_to_dcm
 

@@ -15,6 +15,9 @@ import math
 
 import numpy as np
 
+#: standard gravity g0 [m/s^2]: the conventional 'g' of sensor datasheets (3rd CGPM, 1901); a unit, not the
+#: local gravity (use :func:`normal_gravity` for that)
+STANDARD_GRAVITY = 9.80665
 #: semi-major axis a [m]
 A = 6378137.0
 #: flattening f [-]

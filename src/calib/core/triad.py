@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.io.recording import STANDARD_GRAVITY
+from calib.core.earth import STANDARD_GRAVITY
 
 PARAM_NAMES = ("Kx", "Ky", "Kz", "Exy", "Exz", "Eyx", "Eyz", "Ezx", "Ezy", "bx", "by", "bz")
 #: positions of the off-diagonal installation errors inside E, in parameter order

@@ -59,7 +59,7 @@ from scipy import linalg, optimize, stats
 from calib.calibration.ellipsoid import fit_ellipsoid
 from calib.diagnosis import signatures as sg
 from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
-from calib.io.recording import STANDARD_GRAVITY as STANDARD_GRAVITY_
+from calib.core.earth import STANDARD_GRAVITY as STANDARD_GRAVITY_
 from calib.diagnosis.signatures import SENSORS, AXES, DiagnosisInputError
 
 REPORT_FORMAT = "calib-diagnosis-1"

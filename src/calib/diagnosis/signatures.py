@@ -63,7 +63,7 @@ from calib.signal import allan
 from calib.core import earth
 from calib.sim import effects
 from calib.signal import noisecov
-from calib.io.recording import STANDARD_GRAVITY
+from calib.core.earth import STANDARD_GRAVITY
 from calib.signal.segments import RATE_UNIT_OF_INCREMENT, input_unit_for
 
 SENSORS = ("accel", "gyro")

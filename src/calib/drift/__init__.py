@@ -1,0 +1,2 @@
+"""Gyro-drift estimation of He 2019: PSOBE on the pure-inertial navigation error J (``psobe``, eq. 18), its
+swarm (``pso``, eqs. 16-19), the noise limit and the baselines."""

@@ -344,7 +344,7 @@ def _check_accel_units(path, settings, accel, tri, fs, g_ref):
     if units == "count":
         if "approx_counts_per_g" not in tri or kind != "rate":
             return "skipped (counts without accel.approx_counts_per_g)"
-        per_unit = {"count": tri["approx_counts_per_g"] / recording.STANDARD_GRAVITY}
+        per_unit = {"count": tri["approx_counts_per_g"] / earth.STANDARD_GRAVITY}
         x = accel - tri["approx_zero_count"]
     else:
         per_unit = None

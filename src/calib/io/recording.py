@@ -53,7 +53,6 @@ TO_SI = {
     "rad": 1.0,
     "deg": math.pi / 180.0,
 }
-STANDARD_GRAVITY = 9.80665  # m/s^2, the conventional 'g' of sensor datasheets (CGPM 1901)
 LONG_FILE_SAMPLES = 2_000_000  # above this, writers omit the explicit time coordinate
 
 
@@ -98,7 +97,7 @@ class Header:
 def unit_factor(units: str) -> float | None:
     """Multiplier taking a physical unit to SI; ``g`` uses standard gravity; ``None`` for counts."""
     if units == "g":
-        return STANDARD_GRAVITY
+        return earth.STANDARD_GRAVITY
     return TO_SI.get(units)
 
 

@@ -23,7 +23,8 @@ import numpy as np
 
 from calib.signal import allan
 from calib.core import earth
-from calib.io.recording import STANDARD_GRAVITY, unit_factor
+from calib.core.earth import STANDARD_GRAVITY
+from calib.io.recording import unit_factor
 from calib.core.triad import INPUT_UNITS
 
 

@@ -58,7 +58,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from calib.io.recording import STANDARD_GRAVITY
+from calib.core.earth import STANDARD_GRAVITY
 
 UG = 1e-6     # micro-g in g
 PPM = 1e-6

@@ -65,7 +65,7 @@ from calib.sim import effects
 from calib.io import recording
 from calib.io.atomic import write_json
 from calib.io.netcdf import provenance
-from calib.io.recording import STANDARD_GRAVITY
+from calib.core.earth import STANDARD_GRAVITY
 from calib.core.triad import OFFDIAG, PARAM_NAMES, TriadModel, liu2021_model
 from calib.sim.trajectory import (Trajectory, calibration_plan, plan_duration, recorded_segments,
                          sample_segment_index, segment_table)
