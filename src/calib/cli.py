@@ -7,7 +7,7 @@
     calib calibrate RECORDING.nc --out DIR [--quick] [--noise-record LONG_STATIC.nc]
     calib fieldcal RECORDING.nc [--settings S.yaml] [--out result.nc]
     calib navigate RECORDING.nc --out errors.nc [--calibration DIR/default_calibration.nc]
-    calib diagnose RECORDING.nc --out DIR
+    calib diagnose RECORDING.nc --out DIR [--settings FILE.yaml|json]
 """
 from __future__ import annotations
 
@@ -108,8 +108,13 @@ def cmd_navigate(a):
 def cmd_diagnose(a):
     from calib.diagnosis import diagnose
 
-    rep = diagnose.diagnose_recording(a.recording, a.out)
+    settings = None
+    if a.settings:   # overrides of calib.diagnosis.DEFAULT_SETTINGS
+        txt = Path(a.settings).read_text()
+        settings = yaml.safe_load(txt) if a.settings.endswith((".yaml", ".yml")) else json.loads(txt)
+    rep = diagnose(a.recording, settings, out_dir=a.out)
     print(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
+    return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 2)   # exit code: 2 inconclusive
 
 
 def main(argv=None):
@@ -156,14 +161,15 @@ def main(argv=None):
     s = sub.add_parser("diagnose", help="locate and name the physics a model leaves out")
     s.add_argument("recording")
     s.add_argument("--out", required=True)
+    s.add_argument("--settings", help="JSON or YAML file overriding calib.diagnosis.DEFAULT_SETTINGS")
     s.set_defaults(fn=cmd_diagnose)
     a = p.parse_args(argv)
     try:
-        a.fn(a)
+        code = a.fn(a)
     except (ValueError, FileNotFoundError) as exc:  # RecordingError and friends carry file, field and fix
         print(f"calib {a.cmd}: error: {exc}", file=sys.stderr)
         return 2
-    return 0
+    return code or 0
 
 
 if __name__ == "__main__":

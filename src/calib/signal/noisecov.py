@@ -52,8 +52,8 @@ recording start), disjoint::
                      of sigma^2 exp(-|s-t|/Tc) over the two windows, divided by T_j T_k)
     RW:  C_slow,jk = K^2 (a_j + T_j / 2)  for j earlier than k,   C_slow,jj = K^2 (a_j + T_j / 3)
 
-(``signatures.gm_part`` holds the same GM closed form for the diagnosis's geometry objects; it is not reused
-because it needs the diagnosis's ``Geometry`` of a whole recording.) Note that the std of a T-long mean is not
+(The mismatch diagnosis takes its window-mean GM covariance from :func:`gm_mean_cov` too:
+``calib.diagnosis.noise.gm_part``.) Note that the std of a T-long mean is not
 ADEV(T) in general: for white phase noise it is sqrt(2/3) ADEV(T), for a Gauss-Markov bias it is far larger
 than ADEV(T) when T << Tc (the mean carries the current bias value, which the Allan difference cancels).
 """

@@ -343,13 +343,16 @@ class CountsEngine:
     ``inputs_fn(t) -> (f_b [m/s^2], w_ib_b [rad/s], w_nb_b [rad/s], dw_nb_b [rad/s^2])`` gives the true
     inputs at sensor times ``t`` (n,). Call :meth:`next` repeatedly; state (bias, carry) flows between calls.
     ``constant_inputs``: the inputs never change (a unit at rest); the clean output is then computed once
-    unless a time-dependent effect is enabled.
+    unless a time-dependent effect is enabled. ``clean``: the noise-free increments of every sample of the
+    run (n, 6) [count], computed before (:meth:`CalibrationSimulator.clean_increments`); they are used
+    instead of evaluating the kinematics, so that many noise seeds of one session share them.
     """
 
     def __init__(self, accel: TriadModel, gyro: TriadModel, noise: dict, resolved_effects: dict,
                  site: effects.SiteTruth, sample_rate_hz: float, seed: int, inputs_fn, temperature: dict,
-                 n_nodes: int = 3, constant_inputs: bool = False):
+                 n_nodes: int = 3, constant_inputs: bool = False, clean: np.ndarray | None = None):
         self.constant_inputs, self._clean_const = bool(constant_inputs), None
+        self._clean_given = None if clean is None else np.asarray(clean, dtype=np.float64)
         self.accel, self.gyro, self.noise, self.eff = accel, gyro, noise, resolved_effects
         self.site, self.fs, self.dt = site, float(sample_rate_hz), 1.0 / float(sample_rate_hz)
         self.inputs_fn, self.temp = inputs_fn, temperature
@@ -403,7 +406,9 @@ class CountsEngine:
     def next(self, n: int) -> Chunk:
         n = int(n)
         i0, dt = self.pos, self.dt
-        if self.constant_inputs and not (set(self.eff) & TIME_DEPENDENT_EFFECTS):
+        if self._clean_given is not None:
+            clean = self._clean_given[i0:i0 + n]
+        elif self.constant_inputs and not (set(self.eff) & TIME_DEPENDENT_EFFECTS):
             if self._clean_const is None:
                 self._clean_const = self._clean(0, 1)[0]
             clean = np.broadcast_to(self._clean_const, (n, 6))
@@ -457,9 +462,38 @@ class CalibrationSimulator:
         k = self.trajectory.kinematics(t, lat, self.site.height_m, self.site.gravity_m_s2)
         return k.f_b, k.w_ib_b, k.w_nb_b, k.dw_nb_b
 
-    def engine(self) -> CountsEngine:
+    def engine(self, seed: int | None = None, clean: np.ndarray | None = None) -> CountsEngine:
+        """The counts generator of the session for noise ``seed`` (default: the simulator's own seed);
+        ``clean``: precomputed noise-free increments (:meth:`clean_increments`)."""
         return CountsEngine(self.accel, self.gyro, self.noise, self.effects, self.site, self.sample_rate_hz,
-                            self.seed, self.inputs, self.temperature, n_nodes=3)
+                            self.seed if seed is None else int(seed), self.inputs, self.temperature, n_nodes=3,
+                            clean=clean)
+
+    def clean_increments(self) -> np.ndarray:
+        """Noise-free increments int N dt of every sample (n_samples, 6) [count], accel then gyro: they do not
+        depend on the noise seed, so one evaluation of the kinematics serves every seed of the session."""
+        n = self.n_samples
+        eng = self.engine()
+        out = np.empty((n, 6))
+        for i0 in range(0, n, NOISE_BLOCK):
+            k = min(NOISE_BLOCK, n - i0)
+            out[i0:i0 + k] = eng._clean(i0, k)
+        return out
+
+    def counts(self, seed: int | None = None, clean: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Accelerometer and gyro counts per sample (n_samples, 3 each) for noise ``seed`` (default: the
+        simulator's own): exactly the samples :func:`simulate_calibration_session` writes for that seed.
+        ``clean``: :meth:`clean_increments`, computed once for many seeds of the same configuration."""
+        n = self.n_samples
+        eng = self.engine(seed, clean)
+        dtype = np.int32 if self.noise["quantize"] else np.float64
+        acc = np.empty((n, 3), dtype=dtype)
+        gyr = np.empty((n, 3), dtype=dtype)
+        for i0 in range(0, n, NOISE_BLOCK):
+            ch = eng.next(min(NOISE_BLOCK, n - i0))
+            acc[i0:i0 + len(ch.accel)] = ch.accel
+            gyr[i0:i0 + len(ch.gyro)] = ch.gyro
+        return acc, gyr
 
 
 def build_calibration_simulator(cfg: dict, seed: int) -> CalibrationSimulator:

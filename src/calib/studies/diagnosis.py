@@ -1,38 +1,42 @@
 """Diagnosis stage of the workflow: the study's session, the concealed-effect proof, the real recordings.
 
 Called by the rules of ``workflow/rules/diagnosis.smk`` (and ``real.smk`` for a real-recording study). The
-science lives in :mod:`calib.diagnosis.diagnose`; this module only runs it and writes the stage's products:
+science lives in :mod:`calib.diagnosis`; this module only runs it and writes the stage's products:
 
 * ``diagnose_session``: ``report.json``, ``report.md``, residual and Allan figures of one recording, and a
   ``diagnosis.metrics.json`` (verdict, chi-square before/after, number of findings) for tracking.
-* ``proof_stage``: :func:`calib.diagnosis.diagnose.run_proof` over ``n_seeds`` noise seeds per session, then a labelled
+* ``proof_stage``: :func:`calib.studies.diagnosis_proof.run_proof` over ``n_seeds`` noise seeds per session, then a labelled
   netCDF of every seed's outcome (dims ``session``, ``seed``), the detection-power table and figure
   (``power.csv``, ``power.png``: detection rate against the injected magnitude, the 80 % line), the proof
   table (``proof.csv``, ``proof.md``) and metrics. Wall times go to ``timings.json`` only.
-* ``real_stage``: :func:`calib.diagnosis.diagnose.run_real` on every shared recording plus the injection test.
+* ``real_stage``: :func:`calib.studies.diagnosis_real.run_real` on every shared recording plus the injection test.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 import xarray as xr
 
-from calib.diagnosis import diagnose as dg
+from calib.core.progress import Progress
+from calib.diagnosis import DEFAULT_SETTINGS, diagnose_recording, is_shape_parameter
 from calib.figures import style as figures
-from calib.diagnosis import signatures as sg
+from calib.io.atomic import write_json, write_text
 from calib.io.netcdf import write_netcdf
+from calib.studies import diagnosis_proof as proof
+from calib.studies import diagnosis_real as real
 
 #: the verdicts, in the order used for integer codes in the netCDF
 VERDICTS = ("adequate", "missing_physics", "inconclusive")
 
 
 def check_settings(settings: dict | None, where: str = "diagnosis.settings") -> dict:
-    """Overrides of :data:`calib.diagnosis.diagnose.DEFAULT_SETTINGS`; an unknown name is refused, naming it."""
+    """Overrides of :data:`calib.diagnosis.DEFAULT_SETTINGS`; an unknown name is refused, naming it."""
     settings = dict(settings or {})
-    unknown = sorted(set(settings) - set(dg.DEFAULT_SETTINGS))
+    unknown = sorted(set(settings) - set(DEFAULT_SETTINGS))
     if unknown:
-        raise ValueError(f"{where}: unknown setting(s) {unknown}; known: {sorted(dg.DEFAULT_SETTINGS)}")
+        raise ValueError(f"{where}: unknown setting(s) {unknown}; known: {sorted(DEFAULT_SETTINGS)}")
     return settings
 
 
@@ -48,7 +52,7 @@ def diagnose_session(recording_path, out_dir, settings=None, metrics_path=None, 
         with xr.open_dataset(fieldcal_path) as fc:
             intervals = np.asarray(fc["static_intervals"].values)
         log(f"static intervals: the {len(intervals)} of the field calibration ({fieldcal_path})")
-    rep = dg.diagnose_recording(recording_path, out_dir, st, intervals=intervals,
+    rep = diagnose_recording(recording_path, out_dir, st, intervals=intervals,
                                 intervals_source=str(fieldcal_path or ""))
     gof = rep.get("goodness_of_fit", {})
     log(f"verdict: {rep['verdict']} -- {rep.get('verdict_reason', '')}")
@@ -60,7 +64,7 @@ def diagnose_session(recording_path, out_dir, settings=None, metrics_path=None, 
                "chi2_before": gof.get("before", {}).get("chi2"), "chi2_after": gof.get("after", {}).get("chi2"),
                "p_before": gof.get("before", {}).get("p"), "p_after": gof.get("after", {}).get("p")}
     if metrics_path:
-        dg.write_json_atomic(metrics, metrics_path)
+        write_json(metrics, metrics_path)
     return rep
 
 
@@ -88,7 +92,7 @@ def proof_dataset(out: dict) -> xr.Dataset:
             ints["false_discovery"][i, j] = int(bool(x["false_discoveries"]))
             ints["n_found"][i, j] = len(x["found"])
             ints["verdict"][i, j] = VERDICTS.index(x["verdict"]) if x.get("verdict") in VERDICTS else -1
-    kinds = [dg.PROOF_SESSIONS[s][0] for s in sessions]
+    kinds = [proof.PROOF_SESSIONS[s][0] for s in sessions]
     ds = xr.Dataset(
         {
             "chi2_before": (("session", "seed"), var["chi2_before"],
@@ -134,7 +138,7 @@ def _magnitude_text(eff: dict | None) -> str:
     parts = []
     for params in eff.values():
         for k, v in params.items():
-            if sg.is_shape_parameter(k):
+            if is_shape_parameter(k):
                 continue
             a = np.asarray(v, float)
             if a.size == 0 or not np.any(a):
@@ -159,8 +163,6 @@ def power_csv(power: dict) -> str:
 def power_figure(power: dict, path):
     """Detection rate against the injected magnitude (as a fraction of the proof magnitude), one line per
     effect, the 80 % line and the binomial standard error of each point."""
-    import matplotlib.pyplot as plt
-
     fig, ax = plt.subplots(figsize=(8, 5))
     for i, (nm, p) in enumerate(power.items()):
         pts = sorted(p["points"], key=lambda q: q["scale"])
@@ -188,26 +190,24 @@ def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=
 
     ``base``: the study's ``calibration_session`` config (path, noise, rate) and ``site``: its site; every proof
     session is that session with one effect hidden (``conceal: true``)."""
-    from calib.core.progress import Progress
-
     st = check_settings(settings)
-    names = list(sessions) if sessions else list(dg.PROOF_SESSIONS)
-    unknown = sorted(set(names) - set(dg.PROOF_SESSIONS))
+    names = list(sessions) if sessions else list(proof.PROOF_SESSIONS)
+    unknown = sorted(set(names) - set(proof.PROOF_SESSIONS))
     if unknown:
-        raise ValueError(f"diagnosis.proof.sessions: unknown session(s) {unknown}; known: {list(dg.PROOF_SESSIONS)}")
+        raise ValueError(f"diagnosis.proof.sessions: unknown session(s) {unknown}; known: {list(proof.PROOF_SESSIONS)}")
     out_dir = Path(out_dir)
-    n_single = sum(dg.PROOF_SESSIONS[nm][0] == "single" for nm in names)
+    n_single = sum(proof.PROOF_SESSIONS[nm][0] == "single" for nm in names)
     prog = Progress(len(names) + (5 * n_single if power_seeds else 0), label="proof sessions", every_s=0.0)
     log(f"proof: {len(names)} sessions x {n_seeds} seeds (first seed {first_seed}), {workers} worker(s)"
         + (f"; detection power with {power_seeds} seeds per magnitude" if power_seeds else ""))
     if base is not None:
-        base = {**base, "site": dict(site or base.get("site") or dg.SESSION_BASE["site"])}
-    out = dg.run_proof(out_dir, n_seeds=n_seeds, effects=names, seed=first_seed, workers=workers, settings=st,
+        base = {**base, "site": dict(site or base.get("site") or proof.SESSION_BASE["site"])}
+    out = proof.run_proof(out_dir, n_seeds=n_seeds, effects=names, seed=first_seed, workers=workers, settings=st,
                        power_scales="auto" if power_seeds else None, power_seeds=power_seeds, base=base,
                        progress=lambda i, n, nm: prog(extra=nm))
     write_netcdf(proof_dataset(out), out_dir / "proof.nc", prov)
     if out.get("power"):
-        dg.write_text_atomic(out_dir / "power.csv", power_csv(out["power"]))
+        write_text(out_dir / "power.csv", power_csv(out["power"]))
         power_figure(out["power"], out_dir / "power.png")
     acc = out["acceptance"]
     metrics = {"n_seeds": n_seeds, "sessions": len(names)}
@@ -223,14 +223,14 @@ def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=
     log(Path(out_dir / "proof.md").read_text())
     log(f"wall time {out['_timings']['total_s']:.1f} s")
     if metrics_path:
-        dg.write_json_atomic(metrics, metrics_path)
+        write_json(metrics, metrics_path)
     return out
 
 
 def real_stage(out_dir, settings=None, config_dir=None, inject=None, metrics_path=None, log=print) -> dict:
     """Diagnose every shared real recording and the IMU-TK session with a known term injected."""
     st = check_settings(settings)
-    out = dg.run_real(out_dir, config_dir=config_dir, settings=st, inject=inject)
+    out = real.run_real(out_dir, config_dir=config_dir, settings=st, inject=inject)
     for r in out["recordings"]:
         log(f"{r['recording']}: {r['verdict']} -- {r.get('reason', '')}")
     inj = out.get("injection")
@@ -244,5 +244,5 @@ def real_stage(out_dir, settings=None, config_dir=None, inject=None, metrics_pat
     if inj:
         metrics["injection_named"] = bool(inj["named"])
     if metrics_path:
-        dg.write_json_atomic(metrics, metrics_path)
+        write_json(metrics, metrics_path)
     return out

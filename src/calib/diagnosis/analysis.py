@@ -1,0 +1,300 @@
+"""Name it and model it (module doc of :mod:`calib.diagnosis`, steps 3-5): selection, the refit with the found
+terms, their estimates and intervals, aliases, tested-and-absent terms with upper bounds, untestable terms,
+goodness of fit before and after, and the verdict."""
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+
+from calib.diagnosis.fitting import fit
+from calib.diagnosis.geometry import ROWS, SENSORS
+from calib.diagnosis.identifiability import discrimination_noncentrality, library_geometry, separating_segments
+from calib.diagnosis.library import EXPERIMENTS, build_library
+from calib.diagnosis.locate import block_table, locate
+from calib.diagnosis.noise import covariance_blocks, profile_noise
+from calib.diagnosis.problem import Fit, Problem, base_estimates, lstsq
+from calib.diagnosis.selection import is_slow, renoise, stepwise, testable_keys
+
+def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:
+    """Standard errors of a sensor term marginalised over the slow noise of its sensor instead of conditioned
+    on its point estimate (used for every found sensor term, and for the bounds of absent slow terms). The
+    window means a term is learned from share the bias instability, whose level and correlation time rest
+    on a few independent slow samples (for a slow term the two also trade off), so the GLS standard error at
+    the estimated noise alone undercovers. Over the grid of the restricted likelihood of
+    the final design (Tc x level, :func:`calib.diagnosis.noise.profile_noise`), with weights w ~ exp(-dnll/2)
+    (points with dnll <= 9.21, i.e. weight >= 1 %), the law of total variance gives
+    se^2 = E_w[se^2 | noise] + Var_w[estimate | noise]. None when the model is not the vector model or the
+    fit keeps no design."""
+    c = prob.cand(key)
+    if (prob.kind != "vector" or prob.noise is None or f.X is None or key not in f.slices
+            or c.sensor not in SENSORS):     # site and clock terms: conditional standard errors
+        return None
+    s, si = c.sensor, SENSORS.index(c.sensor)
+    grid = {}
+    profile_noise(prob.geom, prob.noise, prob.y, f.X, prob.parts, prob.cache, blocks=[(si, a) for a in range(3)],
+                     method="reml", update=False, grid_out=grid)
+    pts = grid.get(s, [])
+    if not pts:
+        return None
+    nmin = min(p[0] for p in pts)
+    use = [p for p in pts if p[0] - nmin <= 9.21]
+    nz = prob.noise
+    saved = {k: copy.deepcopy(getattr(nz, k)[s]) for k in ("scale", "N", "Q", "slow")}
+    sl = f.slices[key]
+    w, th, var = [], [], []
+    try:
+        for nll, tc, rho, lam in use:
+            nz.set_level(s, range(3), lam, tc, rho)
+            _, L = covariance_blocks(prob.geom, nz, prob.parts, prob.cache)
+            theta, cov, _ = lstsq(prob.whiten(f.X, L), prob.whiten(prob.y, L))
+            w.append(math.exp(-0.5 * (nll - nmin)))
+            th.append(theta[sl])
+            var.append(np.clip(np.diag(cov)[sl], 0.0, None))
+    finally:
+        for k, v in saved.items():
+            getattr(nz, k)[s] = v
+    w = np.asarray(w) / np.sum(w)
+    th, var = np.asarray(th), np.asarray(var)
+    mean = w @ th
+    return np.sqrt(w @ var + w @ (th - mean) ** 2)
+
+
+def param_entries(prob: Problem, f: Fit, key, marginal: bool | None = None):
+    """Value, standard error and 95 % interval of every determined parameter of ``key`` in the fit ``f``.
+    ``marginal`` (default: for terms smooth in time): standard errors marginalised over the slow-noise
+    parameters (:func:`slow_se_marginal`) instead of conditioned on their estimate."""
+    c = prob.cand(key)
+    sl = f.slices[key]
+    se = np.sqrt(np.clip(np.diag(f.cov)[sl], 0.0, None))
+    how = "normal, GLS standard error"
+    if is_slow(c) if marginal is None else marginal:
+        marg = slow_se_marginal(prob, f, key)
+        if marg is not None:
+            se = marg
+            how = "normal, standard error marginalised over the slow noise (Tc, level; likelihood weights)"
+    vals = f.theta[sl]
+    idx = f.active.get(key, c.active) if key != "time_offset" else np.array([0])
+    out = []
+    for j, v, s in zip(idx, vals, se):
+        out.append({"name": c.names[j], "value": float(v), "ci95": [float(v - 1.96 * s), float(v + 1.96 * s)],
+                    "se": float(s), "unit": c.units[j], "axis": c.axes[j], "interval": how})
+    return out
+
+
+def _aliases(prob: Problem, final: Fit, key, geometry_angles):
+    """Candidates that fit as well as the found term ``key`` in its place: BIC within ``alias_delta_bic`` of
+    the final model (what this realisation of the noise shows), visible signatures closer than
+    ``alias_angle_deg`` (geometry), or a discrimination non-centrality below ``alias_noncentrality`` (what
+    the path can tell apart at the estimated magnitude, whatever this noise realisation did)."""
+    st = prob.settings
+    n = prob.n
+    others = [k for k in testable_keys(prob) if k not in final.terms]
+    rest = [t for t in final.terms if t != key]
+    out = []
+    for b in others:
+        try:
+            fb = fit(prob, rest + [b], taus=final.taus,
+                     delta_hint=final.delta if "time_offset" in rest + [b] and "time_offset" in final.terms else None)
+            lam = discrimination_noncentrality(prob, final, key, b) if final.X is not None else math.inf
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+        dbic = (fb.chi2 - final.chi2) + (fb.k - final.k) * math.log(n)
+        ang = geometry_angles.get(frozenset((key, b)), float("nan"))
+        if (dbic < st["alias_delta_bic"] or (np.isfinite(ang) and ang < st["alias_angle_deg"])
+                or lam < st["alias_noncentrality"]):
+            c = prob.cand(b)
+            out.append({"effect": c.effect, "sensor": c.sensor, "key": b, "delta_bic_vs_found": float(dbic),
+                        "signature_angle_deg": None if not np.isfinite(ang) else float(ang),
+                        "discrimination_noncentrality": float(lam)})
+    out.sort(key=lambda d: d["delta_bic_vs_found"])
+    return out
+
+
+def _absent(prob: Problem, final: Fit, table):
+    tab = {r["term"]: r for r in table}
+    out = []
+    for k in testable_keys(prob):
+        if k in final.terms:
+            continue
+        c = prob.cand(k)
+        try:
+            fk = fit(prob, final.terms + [k], taus={**final.taus, k: 900.0} if c.kind == "drift" else final.taus,
+                     delta_hint=final.delta if "time_offset" in final.terms else None)
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+        pars = param_entries(prob, fk, k)
+        bounds = [{"name": p["name"], "upper_bound_abs": max(abs(p["ci95"][0]), abs(p["ci95"][1])), "value": p["value"],
+                   "se": p["se"], "unit": p["unit"]} for p in pars]
+        undet = [c.names[j] for j in range(c.p) if j not in set(c.active.tolist())]
+        r = tab.get(k, {})
+        out.append({"effect": c.effect, "sensor": c.sensor, "key": k, "upper_bound_95": bounds,
+                    "undetermined_parameters": undet, "delta_bic": r.get("delta_bic"), "p_lrt": r.get("p_lrt"),
+                    "note": "bound conditional on tau = 900 s" if c.kind == "drift" else ""})
+    return out
+
+
+def _untestable(prob: Problem):
+    thr = prob.settings["absorbed_untestable"]
+    out = []
+    for c in prob.lib:
+        if c.untestable:
+            out.append({"effect": c.effect, "sensor": c.sensor, "key": c.key, "why": c.untestable,
+                        "experiment": c.experiment})
+        elif c.active.size == 0:
+            if c.effect in EXPERIMENTS:
+                why, exp = EXPERIMENTS[c.effect]
+            else:
+                why, exp = "", ""
+            absorbed = float(np.max(c.absorbed)) if c.absorbed.size else 1.0
+            why = (why + "; " if why else "") + (
+                f"the base parameters absorb {100 * absorbed:.4g} % of its signature" if absorbed > thr else
+                "its signature is too weak on this path: the 1-sigma error of every parameter exceeds the effect's "
+                "typical magnitude")
+            if not exp:
+                exp = "add segments that excite it (see the signature table) or repeat the session to average noise"
+            out.append({"effect": c.effect, "sensor": c.sensor, "key": c.key, "why": why, "experiment": exp,
+                        "absorbed_fraction": absorbed})
+    return out
+
+
+def refine_signatures(prob: Problem, final: Fit) -> Fit:
+    """One Gauss-Newton step on the signatures of the found terms: they were computed at the base model's
+    K E, which a large missing term biases (the base fit absorbs part of it); rebuild them at the K E of the
+    final fit and refit. The library becomes a new list (a library shared between problems is not changed).
+    The clock offset's design already uses the current K E."""
+    keys = {k for k in final.terms if prob.cand(k).kind != "offset"}
+    if not keys or prob.kind != "vector":
+        return final
+    M, b = base_estimates(final.theta)
+    fresh = {c.key: c for c in build_library(prob.geom, M, b, only=keys)}
+    lib = []
+    for c in prob.lib:
+        if c.key in fresh:
+            c = copy.copy(c)
+            c.S, c.S_by_tau = fresh[c.key].S, fresh[c.key].S_by_tau
+        lib.append(c)
+    prob.lib = lib
+    prob.forget_whitened()
+    return fit(prob, final.terms, taus=final.taus, delta_hint=final.delta if "time_offset" in final.terms else None)
+
+
+def analyse(prob: Problem) -> dict:
+    """Steps 1-5 on a set-up problem; returns the report content (without file paths)."""
+    st = prob.settings
+    base0 = fit(prob, [])
+    final, steps, table = stepwise(prob, base0)
+    # noise re-estimated with the selected terms as fixed effects, then everything refitted under it
+    if final.terms and prob.kind == "vector":
+        renoise(prob, final.terms, final.taus, final.delta)
+    base = fit(prob, [])
+    final = fit(prob, final.terms, taus=final.taus,
+                delta_hint=final.delta if "time_offset" in final.terms else None) if final.terms else base
+    final = refine_signatures(prob, final)
+    info, angles = library_geometry(prob)
+    ang_map = {frozenset((a, b)): v for a, b, v in angles}
+    groups = []
+    for a, b, v in angles:
+        if np.isfinite(v) and v < st["alias_angle_deg"]:
+            groups.append({"members": [a, b], "angle_deg": v})
+    found = []
+    step_info = {s["term"]: s for s in steps}
+    for k in final.terms:
+        c = prob.cand(k)
+        # a found term's intervals do not condition on the estimated slow noise: the window means it is
+        # learned from share the bias instability, whose level and Tc rest on few independent samples
+        pars = param_entries(prob, final, k, marginal=True)
+        ent = {"effect": c.effect, "sensor": c.sensor, "key": k,
+               "axes": sorted({p["axis"] for p in pars if p["axis"] and abs(p["value"]) > 1.96 * p["se"]}),
+               "parameters": pars,
+               "undetermined_parameters": [c.names[j] for j in range(c.p) if j not in set(c.active.tolist())]
+               if c.kind != "offset" else [],
+               "delta_bic": step_info.get(k, {}).get("delta_bic"), "p_lrt": step_info.get(k, {}).get("p_lrt"),
+               "aliases": _aliases(prob, final, k, ang_map)}
+        if c.kind == "drift":
+            ent["tau_s"] = final.taus.get(k)
+            ent["note"] = ("tau profiled on a grid; its uncertainty and that of the slow noise enter the "
+                           "intervals (Gauss-Newton ln-tau column, standard errors marginalised over the slow noise)")
+        found.append(ent)
+    sig = prob.sigma()
+    gof = {}
+    for name, f in (("before", base), ("after", final)):
+        gof[name] = {"chi2": f.chi2, "dof": f.dof, "p": f.p, "by_sensor_axis": block_table(prob, f)}
+    rms = {}
+    o = prob.geom.obs
+    for name, f in (("before", base), ("after", final)):
+        d = {}
+        for si, s in enumerate(SENSORS):
+            for kind in ("static", "rotation"):
+                for r in range(3):
+                    m = (o["sensor"] == si) & (o["row"] == r) & np.array(
+                        [prob.geom.windows[w].kind == kind for w in o["window"]])
+                    if m.any():
+                        zr = f.resid[m] / sig[m]
+                        d[f"{s}_{kind}_{ROWS[r]}"] = {"rms": float(np.sqrt(np.mean(f.resid[m] ** 2))),
+                                                         "rms_over_sigma": float(np.sqrt(np.mean(zr**2))),
+                                                         "unit": prob.geom.units_out[s]}
+        rms[name] = d
+    nb = len(prob.base_names)
+    se_b = np.sqrt(np.diag(base.cov)[:nb])
+    th0 = prob.base_theta if prob.kind == "norm" else np.zeros(nb)
+    moved = [{"name": nm, "before": float(th0[i] + base.theta[i]), "after": float(th0[i] + final.theta[i]),
+              "se_before": float(se_b[i]),
+              "moved_by_se": float((final.theta[i] - base.theta[i]) / se_b[i]) if se_b[i] > 0 else 0.0}
+             for i, nm in enumerate(prob.base_names)]
+    verdict, reason = "adequate", "the base model fits within the noise and no candidate term passes the tests"
+    if found:
+        verdict = "missing_physics"
+        reason = "terms beyond the base model are needed: " + ", ".join(f["key"] for f in found)
+    elif base.p < st["chi2_p_adequate"]:
+        verdict = "missing_physics"
+        reason = (f"the base model does not fit (chi2 p = {base.p:.2g}) and no term of the library explains the "
+                  "misfit: see 'locate'")
+    raw = prob.raw_chi2
+    if raw is not None and raw[2] < st["chi2_p_adequate"]:
+        if found:
+            reason += (f"; note: the segment means scatter beyond the sensor noise (raw chi2 {raw[0]:.4g} on "
+                       f"{raw[1]}), the tests used sigmas scaled to that scatter: the findings are hypotheses")
+        else:
+            verdict = "inconclusive"
+            reason = (f"the segment means scatter beyond the sensor noise (raw chi2 {raw[0]:.4g} on {raw[1]}, reduced "
+                      f"{raw[0] / max(raw[1], 1):.3g}) and no term of the library explains the excess: it may be hand "
+                      "placement / motion during the static segments or physics outside the library; the data "
+                      "cannot tell which")
+    separations = []
+    tk = testable_keys(prob)
+    if prob.kind == "vector" and "latitude_error" in tk and "gyro_g_sensitivity/gyro" in tk:
+        rot_rows = np.flatnonzero(np.array([prob.geom.windows[w].kind == "rotation" for w in o["window"]])
+                                  & (o["row"] == 0))
+        info_r, ang_r = library_geometry(prob, rows=rot_rows)
+        am = {frozenset((a, b)): v for a, b, v in ang_r}
+        separations.append({
+            "pair": ["latitude_error", "gyro_g_sensitivity/gyro"],
+            "angle_deg_all_segments": ang_map.get(frozenset(("latitude_error", "gyro_g_sensitivity/gyro"))),
+            "angle_deg_rotation_means_only": am.get(frozenset(("latitude_error", "gyro_g_sensitivity/gyro"))),
+            "absorbed_fraction_rotation_means_only": {k: info_r[k]["absorbed_fraction"] for k in
+                                                      ("latitude_error", "gyro_g_sensitivity/gyro") if k in info_r},
+            "separating_segments_latitude": separating_segments(prob, "latitude_error", "gyro_g_sensitivity/gyro"),
+            "separating_segments_g_sensitivity": separating_segments(prob, "gyro_g_sensitivity/gyro",
+                                                                      "latitude_error"),
+            "note": ("on the rotation means alone the gyro bias, the g-sensitivity and a latitude error all add a "
+                     "constant vector per rotation axis; the static positions (g-sensitivity: pattern with the "
+                     "gravity direction; latitude: tilt of the Earth-rate direction, scale pinned by the rotations) "
+                     "and the table-angle harmonics (Earth-rate magnitude Omega cos L) separate them")})
+    return {
+        "verdict": verdict, "verdict_reason": reason,
+        "goodness_of_fit": gof,
+        "locate": locate(prob, base),
+        "identifiability": {"candidates": info, "pairwise_angles_deg": [
+            {"a": a, "b": b, "angle_deg": v} for a, b, v in sorted(angles, key=lambda x: x[2]) if np.isfinite(v)],
+            "alias_groups_geometric": groups, "separations": separations},
+        "selection": {"steps": steps, "last_step_candidates": [{k: v for k, v in r.items() if k != "fit"}
+                                                               for r in table]},
+        "found": found,
+        "absent": _absent(prob, final, table),
+        "untestable": _untestable(prob),
+        "base_parameters": moved,
+        "residual_rms": rms,
+        "_fits": (base, final),
+    }

@@ -1,0 +1,146 @@
+"""Generalised least-squares fits of the base model plus candidate terms (module doc of
+:mod:`calib.diagnosis`, steps 1 and 4): linear amplitudes by whitened least squares, the clock offset and the
+warm-up time constants of a bias drift by profile likelihood."""
+from __future__ import annotations
+
+import numpy as np
+from scipy import optimize
+
+from calib.diagnosis.library import DRIFT_TAUS
+from calib.diagnosis.problem import Fit, Problem, base_estimates, lstsq
+
+def _dS_dlntau(c, tau: float) -> np.ndarray:
+    """Derivative of a drift candidate's columns with respect to ln(tau) at a grid point: the three-point
+    (second-order) Lagrange derivative on the non-uniform ln-tau grid of :data:`calib.diagnosis.library.DRIFT_TAUS`
+    (one-sided at the ends of the grid)."""
+    grid = sorted(c.S_by_tau)
+    i = grid.index(tau)
+    if 0 < i < len(grid) - 1:
+        xm, x0, xp = np.log(grid[i - 1]), np.log(grid[i]), np.log(grid[i + 1])
+        h1, h2 = x0 - xm, xp - x0
+        return (-h2 / (h1 * (h1 + h2)) * c.S_by_tau[grid[i - 1]] + (h2 - h1) / (h1 * h2) * c.S_by_tau[tau]
+                + h1 / (h2 * (h1 + h2)) * c.S_by_tau[grid[i + 1]])
+    j = i + 1 if i == 0 else i - 1
+    return (c.S_by_tau[grid[j]] - c.S_by_tau[tau]) / (np.log(grid[j]) - np.log(tau))
+
+
+def columns(prob: Problem, key, taus):
+    """The determined columns of candidate ``key`` (a drift term at its time constant in ``taus``, 900 s
+    when not given)."""
+    c = prob.cand(key)
+    if c.kind == "drift":
+        S = c.S_by_tau[taus.get(key, 900.0)]
+    else:
+        S = c.S
+    return S[:, c.active]
+
+
+def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_column=True, delta_hint=None) -> Fit:
+    """GLS fit of the base model plus ``terms`` (candidate keys). Nonlinear parameters (clock offset, drift
+    time constants) are optimised by profile likelihood unless given."""
+    terms = list(terms)
+    taus = dict(taus or {})
+    drift_keys = [k for k in terms if prob.cand(k).kind == "drift"]
+    has_off = "time_offset" in terms
+    if has_off and delta is None:
+        return _fit_offset(prob, terms, taus, hint=delta_hint)
+    missing = [k for k in drift_keys if k not in taus]
+    if missing:
+        return _fit_drift_taus(prob, terms, taus, delta, missing, offset_column)
+    d = float(delta or 0.0) if has_off else 0.0
+    if has_off:
+        X = prob.cand("time_offset").offset.patch_design(prob.X0, d)
+        Xw = prob.whiten(X)
+    else:
+        X = prob.X0
+        Xw = prob.wcache("X0", lambda: prob.X0)
+    yw = prob.wcache("y", lambda: prob.y)
+    cols, wcols, names, slices, active = [X], [Xw], list(prob.base_names), {}, {}
+    pos = X.shape[1]
+    for k in terms:
+        if k == "time_offset":
+            continue
+        c = prob.cand(k)
+        tau = taus.get(k, 900.0) if c.kind == "drift" else None
+        S = columns(prob, k, taus)
+        Sw = prob.wcache(("S", k, tau), lambda: S)
+        cols.append(S)
+        wcols.append(Sw)
+        slices[k] = slice(pos, pos + S.shape[1])
+        active[k] = c.active
+        names += [f"{k}:{c.names[j]}" for j in c.active]
+        pos += S.shape[1]
+    nonlinear_columns = offset_column and (has_off or drift_keys)
+    th0 = lstsq(np.hstack(wcols), yw)[0] if nonlinear_columns else None
+    for k in drift_keys if offset_column else ():
+        # Gauss-Newton column of ln(tau) at the profiled grid value (amplitudes of a first solve): the joint
+        # covariance then includes the time constant, so the warm-up intervals are not conditional on it
+        c = prob.cand(k)
+        amp = th0[slices[k]]
+        J = _dS_dlntau(c, taus[k])[:, c.active] @ amp
+        cols.append(J[:, None])
+        wcols.append(prob.whiten(J[:, None]))
+        slices[f"{k}#ln_tau"] = slice(pos, pos + 1)
+        names.append(f"{k}:ln_tau_correction")
+        pos += 1
+    if has_off and offset_column:
+        # Gauss-Newton column of the offset at d (with the base M of a first solve): the linear correction
+        # is ~0 at the profile optimum and the joint covariance includes the offset
+        M, _ = base_estimates(th0)
+        J = prob.cand("time_offset").offset.design_delta(d, M, deriv=1)
+        cols.append(J[:, None])
+        wcols.append(prob.whiten(J[:, None]))
+        slices["time_offset"] = slice(pos, pos + 1)
+        active["time_offset"] = np.array([0])
+        names.append("time_offset:offset_s")
+    Aw = np.hstack(wcols)
+    theta, cov, rank = lstsq(Aw, yw)
+    rw = yw - Aw @ theta
+    A = np.hstack(cols)
+    resid = prob.y - A @ theta
+    if has_off and offset_column:
+        theta = theta.copy()
+        theta[slices["time_offset"]] += d   # the column is a correction about d: report the offset itself
+    chi2 = float(rw @ rw)
+    k = rank + ((len(drift_keys) + (1 if has_off else 0)) if not offset_column else 0)
+    dof = prob.n - k - prob.n_noise_params
+    return Fit(terms, theta, cov, chi2, dof, k, names, slices, resid, rw, delta=d, taus=dict(taus),
+               active=active, X=A if keep_X else None)
+
+
+def _fit_offset(prob: Problem, terms, taus, hint=None):
+    """Profile the clock offset: coarse scan on the library grid (or, with ``hint``, a bracket of +-10 ms
+    around a previous estimate), then bounded Brent."""
+    om = prob.cand("time_offset").offset
+    lo, hi = om.bounds
+
+    def f(d):
+        return fit(prob, terms, delta=float(d), taus=taus, offset_column=False).chi2
+
+    if hint is not None:
+        a, b = max(lo, hint - 0.01), min(hi, hint + 0.01)
+    else:
+        grid = np.linspace(lo, hi, 21)
+        vals = np.array([f(d) for d in grid])
+        j = int(np.argmin(vals))
+        a, b = grid[max(j - 1, 0)], grid[min(j + 1, len(grid) - 1)]
+    r = optimize.minimize_scalar(f, bounds=(a, b), method="bounded", options={"xatol": 1e-6})
+    return fit(prob, terms, delta=float(r.x), taus=taus)
+
+
+def _fit_drift_taus(prob: Problem, terms, taus, delta, missing, offset_column=True):
+    """Profile the warm-up time constant of each drift term over the grid (coordinate-wise, two sweeps)."""
+    cur = dict(taus)
+    for k in missing:
+        cur[k] = 900.0
+    best = None
+    for _ in range(2 if len(missing) > 1 else 1):
+        for k in missing:
+            res = []
+            for tau in DRIFT_TAUS:
+                t2 = dict(cur)
+                t2[k] = tau
+                res.append((fit(prob, terms, delta=delta, taus=t2, offset_column=False).chi2, tau))
+            cur[k] = min(res)[1]
+    best = fit(prob, terms, delta=delta, taus=cur, offset_column=offset_column)
+    return best

@@ -1,0 +1,302 @@
+"""Noise of the window means of the mismatch diagnosis: model, covariance and its restricted-ML estimate.
+
+Noise of a window mean (per sensor axis)
+-----------------------------------------
+From the Allan deviation pooled over the static segments (``allan.adev_pooled``), a model
+``AVAR(tau) = 3 Q^2/tau^2 + N^2/tau + K^2 tau/3`` (quantisation, white rate noise, rate random walk; terms
+chosen by a penalised fit, :func:`fit_noise`). For observation weights w (:mod:`calib.diagnosis.geometry`)
+the covariance is
+
+    Cov_N(o, p) = N^2 / dt * sum_k w_ok w_pk                               (same window)
+    Cov_Q(o, p) = Q^2 / dt^2 * sum_k (w_o,k-1 - w_ok)(w_p,k-1 - w_pk)      (same window; phase quantisation)
+    Cov_K(o, p) = K^2 * int_0^inf W_o(u) W_p(u) du,  W_o(u) = sum_{k: t_k > u} w_ok   (all windows)
+
+the last one the Brownian (random-walk) covariance ``K^2 min(s, t)``. A bias instability of correlation time
+T_c looks like a random walk at tau << T_c (K^2 = 2 sigma_b^2 / T_c); modelling it as one over the whole
+session overstates its long-lag variance, so the test is conservative for slow (time-smooth) effects
+(bias drift, temperature bias), exact for white noise.
+
+The level of the fast part and a Gauss-Markov bias instability are then estimated by restricted maximum
+likelihood from the window means themselves (:func:`profile_noise`, :func:`reml_slow`); the Gauss-Markov
+covariance of the window means is the closed form of :func:`calib.signal.noisecov.gm_mean_cov` (the one
+implementation of that noise model), used by :func:`gm_part`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import linalg, optimize
+
+from calib.diagnosis.geometry import SENSORS, DiagnosisInputError, Geometry, rows_of
+from calib.signal import allan, noisecov
+
+@dataclass
+class NoiseFit:
+    """Noise model per sensor: Allan result, quantisation Q and white N per axis (output unit), and the slow
+    part per axis: ``slow[s][a] = (Tc, sigma)`` -- a Gauss-Markov bias of correlation time Tc [s] and
+    standard deviation sigma (Tc = inf: a random walk with K = sigma [unit s^-1/2]); sigma = 0: none."""
+
+    allan: dict
+    Q: dict
+    N: dict
+    slow: dict
+    method: str = ""
+    scale: dict = field(default_factory=dict)     # level of the Allan shape per sensor axis (1: the Allan fit)
+    N_shape: dict = field(default_factory=dict)   # white-noise shape (the Allan fit), scaled by sqrt(scale)
+    Q_shape: dict = field(default_factory=dict)   # quantisation shape
+
+    def describe(self, sensor, a) -> str:
+        tc, sig = self.slow[sensor][a]
+        if sig <= 0:
+            return "no slow component"
+        if math.isinf(tc):
+            return f"random walk K = {sig:.4g} {self.allan[sensor].unit} s^-1/2"
+        return f"Gauss-Markov bias sigma = {sig:.4g} {self.allan[sensor].unit}, Tc = {tc:g} s"
+
+    def set_level(self, sensor: str, axes, lam: float, tc: float, rho: float):
+        """The noise of ``sensor`` on ``axes`` at level ``lam`` (scale of the Allan shape) with a slow part
+        of correlation time ``tc`` and relative variance ``rho`` (sigma_slow = sqrt(lam rho))."""
+        for a in axes:
+            self.scale[sensor][a] = lam
+            self.N[sensor][a] = self.N_shape[sensor][a] * math.sqrt(lam)
+            self.Q[sensor][a] = self.Q_shape[sensor][a] * math.sqrt(lam)
+            self.slow[sensor][a] = (tc, math.sqrt(lam * rho))
+
+
+#: correlation times tried for the slow part of the noise [s]. Slower variations are, by convention, bias
+#: drift: a Gauss-Markov bias with a correlation time beyond the session cannot be told from a drift
+SLOW_TCS = (60.0, 120.0, 300.0, 600.0)
+
+
+def fit_noise(geom: Geometry, y: dict, pulse_counter: dict | None = None) -> NoiseFit:
+    """Shape of the fast noise from the Allan deviation pooled over the static windows:
+    AVAR = 3Q^2/tau^2 + N^2/tau + K^2 tau/3 fitted by NNLS with weights from the equivalent degrees of
+    freedom. For pulse-counter data (integer counts per sample, remainder carried: ``pulse_counter[s]``) the
+    quantisation is known, Q = 1/sqrt(12) count (the carried remainder is uniform in [0, 1)), and N, K are
+    fitted to tau >= 1 s (where the carry has mixed). The overall level of the fast part and the slow part
+    (bias instability) are then estimated from the spread of the segment means themselves
+    (:func:`reml_slow`)."""
+    res, Q, N, slow = {}, {}, {}, {}
+    pulse_counter = pulse_counter or {}
+    for s in SENSORS:
+        recs = [y[s][w.i0:w.i1] for w in geom.static]
+        try:
+            A = allan.adev_pooled(recs, geom.fs, unit=geom.units_out[s])
+        except allan.AllanError as exc:
+            raise DiagnosisInputError(f"{geom.source}: no noise estimate for '{s}' ({exc})",
+                                      "the static segments must hold varying samples (not flat data)") from exc
+        if pulse_counter.get(s):
+            q = 1.0 / math.sqrt(12.0)
+            sel = A.tau >= 1.0
+            if sel.sum() < 3:
+                sel = np.ones_like(A.tau, dtype=bool)
+            tau, edf = A.tau[sel], A.edf[sel]
+            B = np.column_stack([1.0 / tau, tau / 3.0])
+            Nq, Kq = np.zeros(3), np.zeros(3)
+            for a in range(3):
+                av = A.avar[sel, a] - 3.0 * q**2 / tau**2
+                w = np.sqrt(edf / 2.0) / A.avar[sel, a]
+                c, _ = optimize.nnls(B * w[:, None], av * w)
+                for _ in range(2):
+                    w = np.sqrt(edf / 2.0) / np.maximum(B @ c + 3.0 * q**2 / tau**2, 1e-300)
+                    c, _ = optimize.nnls(B * w[:, None], av * w)
+                Nq[a], Kq[a] = math.sqrt(c[0]), math.sqrt(c[1])
+            Q[s], N[s] = np.full(3, q), Nq
+            slow[s] = [(math.inf, float(Kq[a])) for a in range(3)]
+        else:
+            m = A.noise_model(("Q", "N", "K"))
+            Q[s], N[s] = m.Q.copy(), m.N.copy()
+            slow[s] = [(math.inf, float(m.K[a])) for a in range(3)]
+        if np.any(~(N[s] > 0)):
+            raise DiagnosisInputError(f"{geom.source}: '{s}' white-noise level is zero (flat data?)",
+                                      "check the channel; a noise-free channel gives no chi-square")
+        res[s] = A
+    nf = NoiseFit(res, Q, N, slow, method=(
+        "shape of the fast noise (white N, quantisation Q) from the Allan deviation pooled over the static "
+        "segments (3Q^2/tau^2 + N^2/tau + K^2 tau/3, NNLS; Q = 1/sqrt(12) count for pulse-counter data); its level "
+        "and the slow part of the window means (a Gauss-Markov bias instability, correlation time profiled on a "
+        "grid <= 600 s) by restricted maximum likelihood from the contrasts orthogonal to the base model and the "
+        "library's attitude-, rate- and angle-dependent terms, once, before any term is tested"))
+    nf.scale = {s: np.ones(3) for s in SENSORS}
+    nf.N_shape = {s: N[s].copy() for s in SENSORS}
+    nf.Q_shape = {s: Q[s].copy() for s in SENSORS}
+    return nf
+
+
+def gm_part(geom: Geometry, sensor: str, tc: float):
+    """Covariance structure (unit variance) of a Gauss-Markov bias of correlation time ``tc`` over one axis'
+    observations: exact for the window means (closed form of the double integral of exp(-|s-t|/tc)), its
+    high-frequency (random-walk, K^2 = 2/tc) equivalent for the harmonic rows within their window."""
+    ws = geom.windows
+    rows = [rows_of(sensor, w) for w in ws]
+    starts = np.cumsum([0] + rows)
+    m = starts[-1]
+    A = np.zeros((m, m))
+    means = starts[:-1]
+    A[np.ix_(means, means)] = noisecov.gm_mean_cov([geom.time_s[w.i0] for w in ws], [w.n * geom.dt for w in ws], tc)
+    # harmonic rows: within-window random-walk equivalent (K^2 = 2/tc), uncorrelated with the means
+    _, _, AK = covariance_parts(geom, sensor, rw_within_only=True)
+    for j in range(len(ws)):
+        if rows[j] > 1:
+            sl = slice(starts[j] + 1, starts[j] + rows[j])
+            A[sl, sl] = AK[sl, sl] * (2.0 / tc)
+    return A
+
+
+def slow_structure(parts, geom, sensor, tc, cache=None):
+    """Unit structure of the slow part for correlation time ``tc`` (inf: random walk), cached."""
+    if math.isinf(tc):
+        return parts[sensor][2]
+    key = (sensor, tc)
+    if cache is not None and key in cache:
+        return cache[key]
+    A = gm_part(geom, sensor, tc)
+    if cache is not None:
+        cache[key] = A
+    return A
+
+
+def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS, *, blocks=None,
+                  method: str = "reml", update: bool = True, grid_out: dict | None = None):
+    """Profile likelihood of the noise of each sensor given the fixed-effect design ``X``, pooled over the
+    sensor's three axis blocks (one level, one bias instability for the triad):
+
+        C_axis = lam (C_fast,axis + rho A_GM(Tc)),   C_fast,axis = N_a^2 A_N + Q_a^2 A_Q  (Allan shape)
+
+    ``lam`` profiled analytically, ``rho`` on a log grid (plus 0) for every Tc in ``tcs`` (per block
+    C_fast = L L^T, L^-1 A L^-T = V Lam V^T, so every rho costs O(m)). ``method='reml'``: restricted likelihood of
+    the error contrasts orthogonal to X (the noise estimate); ``'ml'``: the full likelihood (to compare
+    designs). The slow part is kept only when it beats rho = 0 by a BIC margin (2 parameters).
+    Returns {sensor: (-2 log L up to a constant shared by all designs, lam, Tc, rho)}; with ``update`` the noise
+    model is set to the optimum (sigma_slow,axis = sqrt(lam rho) N-shape independent). ``grid_out``: a dict
+    that receives, per sensor, every grid point as (-2 log L, Tc, rho, lam) (for confidence sets)."""
+    cache = {} if cache is None else cache
+    out = {}
+    keys = blocks if blocks is not None else [(si, a) for si in range(2) for a in range(3)]
+    for si, s in enumerate(SENSORS):
+        mine = [(sj, a) for sj, a in keys if sj == si]
+        if not mine:
+            continue
+        AN, AQ, _ = parts[s]
+        pre = []
+        for _, a in mine:
+            idx = geom.obs["blocks"][(si, a)]
+            Xb = X[idx]
+            Xb = Xb[:, np.any(Xb != 0, axis=0)]
+            C0 = noise.N_shape[s][a] ** 2 * AN + noise.Q_shape[s][a] ** 2 * AQ
+            L0 = np.linalg.cholesky(C0)
+            X1 = linalg.solve_triangular(L0, Xb, lower=True)
+            y1 = linalg.solve_triangular(L0, y[idx], lower=True)
+            U, sv, _ = np.linalg.svd(X1, full_matrices=False)
+            X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
+            pre.append((L0, X1, y1))
+        m_tot = sum(p[1].shape[0] for p in pre)
+        nfree = sum(p[1].shape[0] - (p[1].shape[1] if method == "reml" else 0) for p in pre)
+        best, white = None, None
+        for tc in tcs:
+            A = slow_structure(parts, geom, s, tc, cache)
+            rr_t, ld_t = 0.0, 0.0
+            rho = None
+            for L0, X1, y1 in pre:
+                B = linalg.solve_triangular(L0, linalg.solve_triangular(L0, A, lower=True).T, lower=True)
+                lam, V = np.linalg.eigh(0.5 * (B + B.T))
+                lam = np.clip(lam, 0.0, None)
+                if rho is None:
+                    scale = 1.0 / max(lam.max(), 1e-300)
+                    rho = np.concatenate([[0.0], scale * np.logspace(-4, 3, 71)])
+                Xt, yt = V.T @ X1, V.T @ y1
+                d = 1.0 + rho[:, None] * lam[None, :]
+                w = 1.0 / d
+                XtWX = np.einsum("gm,mi,mj->gij", w, Xt, Xt)
+                XtWy = np.einsum("gm,mi,m->gi", w, Xt, yt)
+                yWy = np.einsum("gm,m->g", w, yt * yt)
+                sol = np.linalg.solve(XtWX, XtWy[..., None])[..., 0]
+                rr_t = rr_t + (yWy - np.einsum("gi,gi->g", sol, XtWy))
+                ld_t = ld_t + np.sum(np.log(d), axis=1)
+                if method == "reml":
+                    ld_t = ld_t + np.linalg.slogdet(XtWX)[1]
+            lam_hat = rr_t / nfree
+            nll = nfree * np.log(lam_hat) + ld_t
+            if grid_out is not None:
+                grid_out.setdefault(s, []).extend(
+                    (float(v), tc, float(r), float(lh)) for v, r, lh in zip(nll, rho, lam_hat))
+            if white is None:
+                white = (float(nll[0]), math.inf, 0.0, float(lam_hat[0]))
+            j = int(np.argmin(nll))
+            if best is None or nll[j] < best[0]:
+                best = (float(nll[j]), tc, float(rho[j]), float(lam_hat[j]))
+        if white[0] - best[0] < 2.0 * math.log(m_tot):
+            best = white
+        nll_b, tc, rho_b, lam_b = best
+        out[s] = (nll_b, lam_b, tc, rho_b)
+        if update:
+            noise.set_level(s, [a for _, a in mine], lam_b, tc, rho_b)
+    return out
+
+
+def reml_slow(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW_TCS):
+    """Noise level and slow part by restricted ML (:func:`profile_noise`), stored in ``noise``."""
+    return profile_noise(geom, noise, y, X, parts, cache, tcs, method="reml", update=True)
+
+
+def covariance_parts(geom: Geometry, sensor: str, rw_within_only: bool = False):
+    """Geometry-only matrices (A_N, A_Q, A_K) over one axis' observations of ``sensor`` so that the
+    covariance is ``N^2 A_N + Q^2 A_Q + K^2 A_K`` (formulas in the module docstring)."""
+    dt = geom.dt
+    ws = geom.windows
+    rows = [rows_of(sensor, w) for w in ws]
+    m = sum(rows)
+    AN = np.zeros((m, m))
+    AQ = np.zeros((m, m))
+    AK = np.zeros((m, m))
+    starts = np.cumsum([0] + rows)
+    S = np.zeros(m)         # sum of weights
+    I = np.zeros(m)         # int_0^inf W(u) du
+    tmid0 = np.zeros(m)
+    for j, w in enumerate(ws):
+        r = rows[j]
+        W = w.W[:, :r]
+        sl = slice(starts[j], starts[j] + r)
+        AN[sl, sl] = W.T @ W / dt
+        pad = np.vstack([np.zeros((1, r)), W, np.zeros((1, r))])
+        dW = np.diff(pad, axis=0)
+        AQ[sl, sl] = dW.T @ dW / dt**2
+        tail = np.cumsum(W[::-1], axis=0)[::-1]          # tail[k] = sum_{j >= k} w_j
+        t_first = geom.time_s[w.i0] + 0.5 * dt
+        s_w = W.sum(axis=0)
+        T1 = tail[1:]
+        AK[sl, sl] = np.outer(s_w, s_w) * t_first + T1.T @ T1 * dt
+        S[sl] = s_w
+        I[sl] = s_w * t_first + T1.sum(axis=0) * dt
+        tmid0[sl] = t_first
+    if rw_within_only:
+        return AN, AQ, AK
+    # cross-window random-walk terms: Cov = K^2 S_later I_earlier
+    for j, w in enumerate(ws):
+        slj = slice(starts[j], starts[j] + rows[j])
+        for k in range(j + 1, len(ws)):
+            slk = slice(starts[k], starts[k] + rows[k])
+            if tmid0[slk.start] >= tmid0[slj.start]:
+                blk = np.outer(I[slj], S[slk])
+            else:
+                blk = np.outer(S[slj], I[slk])
+            AK[slj, slk] = blk
+            AK[slk, slj] = blk.T
+    return AN, AQ, AK
+
+
+def covariance_blocks(geom: Geometry, noise: NoiseFit, parts, cache=None):
+    """Per (sensor index, axis) covariance blocks of the observations and their Cholesky factors."""
+    C, L = {}, {}
+    for si, s in enumerate(SENSORS):
+        AN, AQ, _ = parts[s]
+        for a in range(3):
+            tc, sig = noise.slow[s][a]
+            c = noise.N[s][a] ** 2 * AN + noise.Q[s][a] ** 2 * AQ
+            if sig > 0:
+                c = c + sig**2 * slow_structure(parts, geom, s, tc, cache)
+            C[(si, a)] = c
+            L[(si, a)] = np.linalg.cholesky(c)
+    return C, L

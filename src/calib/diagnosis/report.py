@@ -1,0 +1,221 @@
+"""Report files of the diagnosis: ``report.json`` content, the plain-words ``report.md``, and the figures
+(standardised residuals before/after, Allan deviation)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+
+from calib.diagnosis.geometry import AXES, ROWS, SENSORS
+from calib.diagnosis.problem import REPORT_FORMAT, Problem
+from calib.figures import style as figures
+from calib.sim import effects
+
+def fmt(v, nd=4):
+    """``v`` with ``nd`` significant digits; 'n/a' for None."""
+    if v is None:
+        return "n/a"
+    try:
+        return f"{v:.{nd}g}"
+    except (TypeError, ValueError):
+        return str(v)
+
+
+def report_markdown(rep: dict) -> str:
+    """Plain-words report."""
+    L = [f"# Mismatch diagnosis: {Path(rep.get('recording', '')).name}", ""]
+    L.append(f"**Verdict: {rep['verdict']}** -- {rep.get('verdict_reason', '')}")
+    L.append("")
+    if rep["verdict"] == "inconclusive" and "goodness_of_fit" not in rep:
+        # refused before any fit (bad input): the reason and the fix are all there is to say
+        if rep.get("fix"):
+            L.append(f"What would fix it: {rep['fix']}")
+        return "\n".join(L) + "\n"
+    L.append(f"Model: {rep.get('model_description', rep.get('model'))}")
+    L.append(f"Noise: {rep.get('noise', {}).get('method', '')}")
+    L.append("")
+    g = rep["goodness_of_fit"]
+    L.append("## Goodness of fit")
+    L.append("")
+    L.append("| model | chi2 | dof | p |")
+    L.append("|---|---|---|---|")
+    for k in ("before", "after"):
+        L.append(f"| {k} | {fmt(g[k]['chi2'])} | {g[k]['dof']} | {fmt(g[k]['p'], 3)} |")
+    L.append("")
+    L.append("Per sensor axis (before): " + "; ".join(
+        f"{b['sensor']} {b['axis']}: {fmt(b['chi2'])} on {b['n_obs']}" for b in g["before"]["by_sensor_axis"]))
+    L.append("")
+    L.append("## Where the misfit lives (base model)")
+    L.append("")
+    summ = rep.get("locate", {}).get("summary", [])
+    L += [f"- {t}" for t in summ] if summ else ["- nothing stands out above the noise"]
+    L.append("")
+    L.append("## Found")
+    L.append("")
+    if not rep["found"]:
+        L.append("Nothing: no candidate term passes the BIC and likelihood-ratio tests.")
+    for f in rep["found"]:
+        al = ", ".join(f"{a['key']} (dBIC {a['delta_bic_vs_found']:.1f})" for a in f["aliases"]) or "none"
+        L.append(f"### {f['effect']} ({f['sensor']}), BIC gain {fmt(f['delta_bic'])}, LRT p = {fmt(f['p_lrt'], 3)}")
+        L.append("")
+        L.append(f"Aliases (fit as well, within {rep['settings']['alias_delta_bic']:g} of BIC, or signature angle < "
+                 f"{rep['settings']['alias_angle_deg']:g} deg, or not separable by this path at the estimated "
+                 f"magnitude: discrimination non-centrality < {rep['settings'].get('alias_noncentrality', 13):g}): "
+                 f"{al}")
+        L.append("")
+        L.append("| parameter | value | 95 % interval | unit |")
+        L.append("|---|---|---|---|")
+        for p in f["parameters"]:
+            L.append(f"| {p['name']} | {fmt(p['value'], 5)} | [{fmt(p['ci95'][0], 5)}, {fmt(p['ci95'][1], 5)}] "
+                     f"| {p['unit']} |")
+        if f.get("tau_s"):
+            L.append(f"| tau (profiled) | {f['tau_s']:g} | -- | s |")
+        if f.get("undetermined_parameters"):
+            L.append("")
+            L.append("Not determined by this path: " + ", ".join(f["undetermined_parameters"]))
+        L.append("")
+    L.append("## Tested and absent (95 % upper bounds)")
+    L.append("")
+    for a in rep["absent"]:
+        b = "; ".join(f"|{x['name']}| < {fmt(x['upper_bound_abs'], 3)} {x['unit']}" for x in a["upper_bound_95"])
+        L.append(f"- {a['key']}: {b}")
+    L.append("")
+    L.append("## Untestable on this recording")
+    L.append("")
+    for u in rep["untestable"]:
+        L.append(f"- **{u['key']}**: {u['why']}. Experiment that would make it testable: {u['experiment']}")
+    L.append("")
+    sep = rep.get("identifiability", {}).get("separations", [])
+    if sep:
+        L.append("## Separating look-alikes")
+        L.append("")
+        for s_ in sep:
+            segs = ", ".join(f"{x['segment']} ({100 * x['share']:.0f} %)" for x in s_["separating_segments_latitude"])
+            L.append(f"- {s_['pair'][0]} vs {s_['pair'][1]}: signature angle "
+                     f"{fmt(s_['angle_deg_all_segments'], 3)} deg with every segment, "
+                     f"{fmt(s_['angle_deg_rotation_means_only'], 3)} deg on the rotation means alone. Segments "
+                     f"that separate them: {segs}")
+            L.append(f"  {s_['note']}")
+        L.append("")
+    L.append("## Residual RMS (output units)")
+    L.append("")
+    L.append("| observation | before | after | unit |")
+    L.append("|---|---|---|---|")
+    for k, v in rep["residual_rms"]["before"].items():
+        a = rep["residual_rms"]["after"].get(k, {})
+        L.append(f"| {k} | {fmt(v['rms'])} | {fmt(a.get('rms'))} | {v['unit']} |")
+    L.append("")
+    mv = [b for b in rep["base_parameters"] if abs(b["moved_by_se"]) > 2]
+    L.append("## Base parameters that moved by more than 2 standard errors")
+    L.append("")
+    L += [f"- {b['name']}: {fmt(b['before'], 8)} -> {fmt(b['after'], 8)} ({b['moved_by_se']:+.1f} se)" for b in mv] \
+        or ["- none"]
+    L.append("")
+    if rep.get("figures"):
+        L.append("## Figures")
+        L.append("")
+        L += [f"![{Path(f).stem}]({Path(f).name})" for f in rep["figures"]]
+    return "\n".join(L) + "\n"
+
+
+def residual_figure(prob: Problem, fits, path, title=""):
+    """Standardised residuals (residual / sigma) per segment before and after, per sensor axis and row."""
+    g, o = prob.geom, prob.geom.obs
+    sig = prob.sigma()
+    base, final = fits
+    rows = sorted({(si, r) for si, r in zip(o["sensor"], o["row"])})
+    fig, axs = plt.subplots(len(rows), 1, figsize=(10, 2.2 * len(rows)), sharex=True, squeeze=False)
+    labels = [w.label for w in g.windows]
+    for ax, (si, r) in zip(axs[:, 0], rows):
+        for a, col in zip(range(3), ("C0", "C1", "C2")):
+            m = (o["sensor"] == si) & (o["row"] == r) & (o["axis"] == a)
+            x = o["window"][m] + (a - 1) * 0.22
+            ax.plot(x, base.resid[m] / sig[m], "o", mfc="none", color=col, ms=4,
+                    label=f"{AXES[a]} before" if r == 0 else None)
+            ax.plot(x, final.resid[m] / sig[m], ".", color=col, ms=5, label=f"{AXES[a]} after" if r == 0 else None)
+        ax.axhline(0, color="k", lw=0.5)
+        for k in (-3, 3):
+            ax.axhline(k, color="k", lw=0.5, ls=":")
+        name = "norm residual" if prob.kind == "norm" else f"{SENSORS[si]} {ROWS[r]}"
+        ax.set_ylabel(f"{name}\n(residual / sigma)")
+    axs[0, 0].legend(ncol=6, fontsize=7, loc="upper right")
+    axs[-1, 0].set_xticks(range(len(labels)))
+    axs[-1, 0].set_xticklabels(labels, rotation=90, fontsize=6)
+    fig.suptitle(title or "residuals before (open) and after (filled) the selected terms")
+    fig.tight_layout()
+    return figures.save(fig, path)
+
+
+def allan_figure(prob: Problem, path):
+    fig, axs = plt.subplots(1, 2, figsize=(10, 4))
+    for ax, s in zip(axs, SENSORS):
+        A = (prob.noise.allan.get(s) if prob.noise is not None else
+             (prob.norm_allan if s == "accel" else None))
+        if A is None:
+            ax.set_visible(False)
+            continue
+        for a in range(3):
+            ax.loglog(A.tau, A.adev[:, a], "o-", ms=3, label=f"{AXES[a]}")
+        ax.set_xlabel("tau [s]")
+        ax.set_ylabel(f"Allan deviation [{A.unit}]")
+        ax.set_title(f"{s} (pooled static segments)")
+        ax.legend()
+    fig.tight_layout()
+    return figures.save(fig, path)
+
+
+def _report_header(path, st):
+    return {"format": REPORT_FORMAT, "recording": str(path), "settings": {k: v for k, v in st.items()},
+            "library": sorted({eid for eid in effects.REGISTRY})}
+
+
+def inconclusive_report(path, st, reason, fix="") -> dict:
+    rep = _report_header(path, st)
+    rep.update({"verdict": "inconclusive", "verdict_reason": reason, "fix": fix, "found": [], "absent": [],
+                "untestable": [], "figures": []})
+    return rep
+
+
+def build_report(prob: Problem, res: dict, path, st, figures_dir=None) -> dict:
+    rep = _report_header(path, st)
+    g = prob.geom
+    rep.update({
+        "source": str(prob.source_kind),
+        "model": prob.kind,
+        "model_description": (
+            "vector model N = M x + b per triad (M = K E, Liu 2021 eqs. 1-4) with the inputs known from the nominal "
+            "attitudes and the table rate/angle; 24 parameters, all identified"
+            if prob.kind == "vector" else
+            "accelerometer norm model (Liu 2021 eq. 7) in the identified lower-triangular form (9 parameters); "
+            "the recording has no nominal attitudes, so only what the gravity norm sees can be tested"),
+        "site": {"latitude_deg": g.latitude_deg, "height_m": g.height_m, "gravity_m_s2": g.gravity_m_s2,
+                 "gravity_source": g.gravity_source},
+        "observations": {"n": prob.n, "static_segments": len(g.static), "rotation_segments": len(g.rotation),
+                         "units_out": g.units_out, "units_in": g.units_in, "notes": g.notes},
+        "noise": _noise_summary(prob),
+    })
+    rep.update({k: v for k, v in res.items() if not k.startswith("_")})
+    figs = []
+    if figures_dir is not None and st.get("figures", True):
+        figs.append(str(residual_figure(prob, res["_fits"], Path(figures_dir) / "residuals_before_after.png")))
+        figs.append(str(allan_figure(prob, Path(figures_dir) / "allan_deviation.png")))
+    rep["figures"] = figs
+    return rep
+
+
+def _noise_summary(prob: Problem) -> dict:
+    nz = prob.noise
+    if nz is None:
+        return {"method": prob.noise_method,
+                "reduced_chi2_base": prob.overdispersion}
+    out = {"method": nz.method, "per_sensor_axis": []}
+    for s in SENSORS:
+        for a in range(3):
+            tc, sig = nz.slow[s][a]
+            out["per_sensor_axis"].append({
+                "sensor": s, "axis": AXES[a], "unit": nz.allan[s].unit, "N_white": float(nz.N[s][a]),
+                "Q_quantisation": float(nz.Q[s][a]), "level_scale_from_residuals": float(nz.scale[s][a]),
+                "slow": nz.describe(s, a), "slow_tc_s": None if math.isinf(tc) else tc, "slow_sigma": sig,
+                "sigma_of_60s_mean_white": float(nz.N[s][a] / math.sqrt(60.0))})
+    return out

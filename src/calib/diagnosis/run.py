@@ -1,0 +1,119 @@
+"""Running the diagnosis on a recording file or an in-memory dataset: the one entry point :func:`diagnose`."""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calib.diagnosis.analysis import analyse
+from calib.diagnosis.blas import single_thread_blas
+from calib.diagnosis.geometry import DiagnosisInputError
+from calib.diagnosis.norm import setup_norm_problem
+from calib.diagnosis.problem import DEFAULT_SETTINGS
+from calib.diagnosis.report import build_report, inconclusive_report, report_markdown
+from calib.diagnosis.vector import setup_problem
+from calib.io import recording
+from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
+from calib.io.recording import RecordingError
+from calib.signal import detect
+from calib.signal.segments import SegmentError
+
+
+def diagnose(recording_or_dataset, settings=None, *, out_dir=None, path: str = "", intervals=None,
+             intervals_source: str = "", library_from=None) -> dict:
+    """Diagnose a recording: a ``calib-recording-1`` file (path) or an in-memory dataset; returns the report.
+
+    ``settings``: overrides of :data:`calib.diagnosis.DEFAULT_SETTINGS`. ``out_dir``: where ``report.json``,
+    ``report.md`` and the figures go (None: nothing is written). For a file: ``intervals`` / ``intervals_source``
+    as in :func:`diagnose_recording`. For a dataset: ``path`` names it in the report and ``library_from`` is a
+    :class:`calib.diagnosis.Problem` on the same geometry whose library is reused (:func:`diagnose_dataset`).
+    """
+    if isinstance(recording_or_dataset, (str, os.PathLike)):
+        return diagnose_recording(recording_or_dataset, out_dir, settings, intervals=intervals,
+                                  intervals_source=intervals_source)
+    rep, _ = diagnose_dataset(recording_or_dataset, out_dir, settings, path=path, library_from=library_from)
+    return rep
+
+
+def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=None):
+    """Diagnose an in-memory recording. Returns (report dict, Problem or None). Writes files when
+    ``out_dir`` is given."""
+    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    t0 = time.perf_counter()
+    with single_thread_blas():
+        rep, prob = _diagnose_dataset(ds, out_dir, st, path, library_from)
+    rep["elapsed_s"] = time.perf_counter() - t0
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        # the wall time stays out of the file, so that the same input gives the same report
+        write_json_atomic({k: v for k, v in rep.items() if k != "elapsed_s"}, out_dir / "report.json")
+        write_text_atomic(out_dir / "report.md", report_markdown(rep))
+    return rep, prob
+
+
+def _diagnose_dataset(ds, out_dir, st, path, library_from):
+    prob = None
+    try:
+        if "nominal_attitude" in ds or (library_from is not None and library_from.kind == "vector"):
+            prob = setup_problem(ds, st, library_from=library_from)
+        else:
+            prob = setup_norm_problem(ds, st)
+        rank = np.linalg.matrix_rank(prob.whiten(prob.X0))
+        if rank < prob.X0.shape[1]:
+            raise DiagnosisInputError(f"the base calibration failed: its design has rank {rank} of "
+                                      f"{prob.X0.shape[1]} (the positions do not determine every parameter)",
+                                      "add static positions that point each axis up and down")
+        res = analyse(prob)
+        prob.last_fits = res["_fits"]
+        if not np.isfinite(res["goodness_of_fit"]["before"]["chi2"]):
+            raise DiagnosisInputError("the base calibration failed: non-finite chi-square")
+        rep = build_report(prob, res, path, st, figures_dir=out_dir)
+    except DiagnosisInputError as exc:
+        rep = inconclusive_report(path, st, exc.reason, exc.fix)
+    except (RecordingError, SegmentError) as exc:
+        rep = inconclusive_report(path, st, str(exc))
+    except (np.linalg.LinAlgError, FloatingPointError) as exc:
+        rep = inconclusive_report(path, st, f"the base calibration failed numerically ({exc})",
+                                  "check the recording for dead channels or segments with the same attitude")
+    return rep, prob
+
+
+def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_source: str = "") -> dict:
+    """``calib diagnose RECORDING.nc --out DIR``: writes DIR/report.json, DIR/report.md and figures.
+
+    Works on any ``calib-recording-1`` file with a segment table (synthetic or imported; an imported
+    recording without one gets the static ``intervals`` given -- (m, 2) [start, stop) samples, e.g. those the
+    field calibration used -- or else static segments from :func:`calib.signal.detect.detect_in_recording`). Bad input
+    (unreadable file, too short, too few segments, failed calibration, no noise estimate) gives a report
+    with verdict ``inconclusive`` and the reason -- never a finding. ``out_dir`` None: nothing is written.
+    """
+    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    try:
+        ds = recording.load(path)
+    except (RecordingError, OSError, ValueError) as exc:
+        rep = inconclusive_report(path, st, f"cannot read the recording: {exc}",
+                                  "give a valid calib-recording-1 file")
+        _write_refusal(rep, out_dir)
+        return rep
+    if "segment_index" not in ds:
+        try:
+            if intervals is not None:
+                ds = detect.add_segment_table(ds, np.asarray(intervals, dtype=np.int64).reshape(-1, 2))
+                ds["segment_index"].attrs["intervals_from"] = intervals_source or "given"
+            else:
+                ds = detect.add_segment_table(ds, detect.detect_in_recording(ds))
+        except Exception as exc:  # noqa: BLE001 - any detection failure is an inconclusive input
+            rep = inconclusive_report(path, st, f"no segment table and static detection failed: {exc}",
+                                      "add a segment table (segment_index, segment_kind)")
+            _write_refusal(rep, out_dir)
+            return rep
+    rep, _ = diagnose_dataset(ds, out_dir, st, path=path)
+    return rep
+
+
+def _write_refusal(rep: dict, out_dir):
+    if out_dir is not None:
+        write_json_atomic(rep, Path(out_dir) / "report.json")
+        write_text_atomic(Path(out_dir) / "report.md", report_markdown(rep))

@@ -1,0 +1,120 @@
+"""Forward stepwise selection of candidate terms (module doc of :mod:`calib.diagnosis`, step 3): the candidate
+with the largest BIC gain is added while its gain exceeds ``min_delta_bic`` and its likelihood-ratio test has
+p < ``alpha``; terms smooth in time are tested against a re-profiled noise."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from calib.diagnosis.fitting import columns, fit
+from calib.diagnosis.geometry import SENSORS
+from calib.diagnosis.noise import covariance_blocks, profile_noise, reml_slow
+from calib.diagnosis.problem import Fit, Problem
+from calib.diagnosis.vector import reml_design
+
+def testable_keys(prob: Problem):
+    """Candidates with at least one determined parameter."""
+    return [c.key for c in prob.lib if not c.untestable and c.active.size > 0]
+
+
+def is_slow(c) -> bool:
+    """Terms smooth in time (bias drift, temperature sensitivity): tested against a re-estimated noise."""
+    return c.kind == "drift" or c.effect == "temperature_sensitivity"
+
+
+def _design_blocks(prob: Problem, key):
+    c = prob.cand(key)
+    si = SENSORS.index(c.sensor)
+    return [(si, a) for a in range(3)]
+
+
+def _slow_statistic(prob: Problem, cur: Fit, key):
+    """-2 log likelihood-ratio of adding the slow term ``key`` with the noise of its sensor's blocks
+    re-profiled (full ML: level, bias-instability sigma and Tc) under both designs; the drift time constant
+    profiled over a coarse grid. Returns (statistic, extra parameters, tau or None)."""
+    c = prob.cand(key)
+    blocks = _design_blocks(prob, key)
+    Xc = cur.X
+    y = prob.y
+
+    def nll(X):
+        r = profile_noise(prob.geom, prob.noise, y, X, prob.parts, prob.cache, blocks=blocks, method="ml",
+                             update=False)
+        return sum(v[0] for v in r.values())
+
+    n0 = nll(Xc)
+    best = (np.inf, None)
+    taus = (300.0, 900.0, 2700.0) if c.kind == "drift" else (None,)
+    for tau in taus:
+        S = columns(prob, key, {key: tau} if tau else {})
+        v = nll(np.hstack([Xc, S]))
+        if v < best[0]:
+            best = (v, tau)
+    k = int(c.active.size) + (1 if c.kind == "drift" else 0)
+    return n0 - best[0], k, best[1]
+
+
+def renoise(prob: Problem, terms, taus=None, delta=0.0):
+    """Re-estimate the noise (REML) with ``terms`` added to the fixed effects and reset the whitening."""
+    extra = []
+    for k in terms:
+        c = prob.cand(k)
+        if c.kind == "offset":
+            continue
+        if is_slow(c):
+            extra.append(columns(prob, k, taus or {}))
+    X = np.hstack([reml_design(prob)] + extra)
+    reml_slow(prob.geom, prob.noise, prob.y, X, prob.parts, prob.cache)
+    _, prob.L = covariance_blocks(prob.geom, prob.noise, prob.parts, prob.cache)
+    prob.forget_whitened()
+
+
+def stepwise(prob: Problem, base: Fit | None = None):
+    """Forward selection by BIC with a likelihood-ratio test. Returns (final fit, steps, candidate table of
+    the last step). Terms smooth in time are tested with the noise re-profiled (:func:`_slow_statistic`);
+    when one is selected the noise is re-estimated with it as a fixed effect."""
+    st = prob.settings
+    n = prob.n
+    cur = base or fit(prob, [])
+    steps = []
+    keys = testable_keys(prob)
+    last_table = []
+    for _ in range(st["max_steps"]):
+        table = []
+        for k in keys:
+            if k in cur.terms:
+                continue
+            c = prob.cand(k)
+            if is_slow(c) and prob.kind == "vector":
+                dchi, dk, tau = _slow_statistic(prob, cur, k)
+                f = None
+            else:
+                f = fit(prob, cur.terms + [k], taus=cur.taus,
+                        delta_hint=cur.delta if "time_offset" in cur.terms else None)
+                dchi = cur.chi2 - f.chi2
+                dk = f.k - cur.k
+                tau = None
+            if dk <= 0:
+                continue
+            dbic = dchi - dk * math.log(n)
+            p = float(stats.chi2.sf(max(dchi, 0.0), dk))
+            table.append({"term": k, "delta_chi2": float(dchi), "delta_k": int(dk), "delta_bic": float(dbic),
+                          "p_lrt": p, "fit": f, "tau": tau,
+                          "statistic": "-2 ln LR, noise re-profiled" if is_slow(c) else "delta chi-square"})
+        table.sort(key=lambda r: -r["delta_bic"])
+        last_table = table
+        ok = [r for r in table if r["delta_bic"] > st["min_delta_bic"] and r["p_lrt"] < st["alpha"]]
+        if not ok:
+            break
+        best = ok[0]
+        terms = cur.terms + [best["term"]]
+        if best["fit"] is None:   # a slow term: re-estimate the noise with it, refit everything
+            renoise(prob, terms, {**cur.taus, best["term"]: best["tau"]} if best["tau"] else cur.taus)
+            new = fit(prob, terms)
+        else:
+            new = best["fit"]
+        steps.append({k: v for k, v in best.items() if k != "fit"} | {"chi2_after": new.chi2})
+        cur = new
+    return cur, steps, last_table

@@ -1,0 +1,85 @@
+"""Scoring a diagnosis report against the truth sidecar of a synthetic session: the only place the truth is read
+(the concealed-effect proof of :mod:`calib.studies.diagnosis_proof`)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from calib.diagnosis import AXES
+
+def _truth_effects(truth) -> dict:
+    """The ``effects`` of a truth sidecar (a path or its content)."""
+    if isinstance(truth, (str, Path)):
+        truth = json.loads(Path(truth).read_text())
+    return dict(truth.get("effects") or {})
+
+
+def truth_value(eff_params: dict, pname: str):
+    """Truth value of a reported parameter name like 'k2_ug_per_g2[x]' or 'G_deg_h_per_g[x,y]'."""
+    if "[" in pname:
+        key, idx = pname[:-1].split("[")
+        ii = tuple(AXES.index(a) for a in idx.split(","))
+    else:
+        key, ii = pname, ()
+    if key not in eff_params:
+        return None
+    v = np.asarray(eff_params[key], dtype=float)
+    return float(v[ii]) if ii else float(v)
+
+
+def alias_group(entry):
+    """Effect ids of a found term and of its reported aliases."""
+    return {entry["effect"]} | {a["effect"] for a in entry.get("aliases", [])}
+
+
+def score(report: dict, truth_sidecar, kind: str | None = None) -> dict:
+    """Compare a diagnosis report with the truth sidecar of the session.
+
+    ``kind``: 'null' | 'single' | 'confounded' (default: 'null' without effects, else 'single').
+    Returns: ``correct`` (null: nothing found; single: the injected effect named, alone or within the reported
+    alias group; confounded: never attributed to one effect -- every finding names a group that holds the
+    injected effect, or nothing is found and the effect is listed as untestable), ``named_exactly``,
+    ``false_discoveries`` (findings whose group holds no injected effect), per-parameter ``coverage`` (truth
+    inside the reported 95 % interval) for the exactly named effect, ``chi2_after_p``."""
+    eff = _truth_effects(truth_sidecar)
+    injected = set(eff)
+    kind = kind or ("null" if not injected else "single")
+    found = report.get("found", [])
+    false_disc = [f["key"] for f in found if not (alias_group(f) & injected)]
+    res = {"kind": kind, "injected": sorted(injected), "found": [f["key"] for f in found],
+           "verdict": report.get("verdict"), "false_discoveries": false_disc,
+           "chi2_before": report.get("goodness_of_fit", {}).get("before", {}).get("chi2"),
+           "chi2_after": report.get("goodness_of_fit", {}).get("after", {}).get("chi2"),
+           "chi2_after_p": report.get("goodness_of_fit", {}).get("after", {}).get("p"), "coverage": []}
+    if kind == "null":
+        res["correct"] = len(found) == 0
+        res["named_exactly"] = res["correct"]
+        return res
+    if kind == "confounded":
+        untest = {u["effect"] for u in report.get("untestable", [])}
+        mine = [f for f in found if alias_group(f) & injected]
+        # attributed to one effect: a finding that names an injected effect without naming its alias group
+        res["attributed_to_one"] = any(len(alias_group(f)) == 1 for f in mine)
+        res["correct"] = bool(not res["attributed_to_one"] and (mine or (injected & untest)))
+        res["named_group"] = any(len(alias_group(f)) >= 2 and (alias_group(f) & injected) for f in found)
+        res["listed_untestable"] = bool(injected & untest)
+        res["named_exactly"] = False
+        return res
+    ok = [f for f in found if alias_group(f) & injected]
+    res["correct"] = bool(ok)
+    exact = [f for f in found if f["effect"] in injected]
+    res["named_exactly"] = bool(exact)
+    for f in exact:
+        for p in f["parameters"]:
+            tv = truth_value(eff[f["effect"]], p["name"])
+            if tv is None:
+                continue
+            res["coverage"].append({"key": f["key"], "name": p["name"], "truth": tv, "value": p["value"],
+                                    "ci95": p["ci95"], "covered": bool(p["ci95"][0] <= tv <= p["ci95"][1]),
+                                    "se": p.get("se")})
+    return res
+
+
+# =====================================================================================================
