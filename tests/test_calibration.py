@@ -364,7 +364,6 @@ def test_full_chain_from_recording(recording):
 def test_static_detector_hook(recording, monkeypatch):
     """Without a segment table the static segments come from calib.signal.detect.detect_static(accel, gyro, fs)
     (``.intervals`` [start, stop)); replaced here by the known segments to test the hook itself."""
-    import sys
     import types
 
     bare = recording.drop_vars(["segment_index", "segment_kind", "segment_label", "rotation_axis", "rotation_rate",
@@ -373,16 +372,17 @@ def test_static_detector_hook(recording, monkeypatch):
     kinds = recording["segment_kind"].values
     ranges = [(int(np.flatnonzero(si == s)[0]), int(np.flatnonzero(si == s)[-1]) + 1)
               for s in range(len(kinds)) if kinds[s] == "static"]
-    fake = types.ModuleType("calib.signal.detect")
-    fake.detect_static = lambda accel, gyro, fs: types.SimpleNamespace(intervals=np.array(ranges))
-    monkeypatch.setitem(sys.modules, "calib.signal.detect", fake)
-    monkeypatch.setattr("calib.signal.detect", fake, raising=False)
+    monkeypatch.setattr(sg.detect, "detect_static",
+                        lambda accel, gyro, fs: types.SimpleNamespace(intervals=np.array(ranges)))
     st = sg.static_means(bare, "accel")
     assert st.n == 24 and st.attitude is None
     assert np.allclose(st.means, sg.static_means(recording, "accel").means)
-    monkeypatch.setitem(sys.modules, "calib.signal.detect", None)  # not installed -> clear error
-    monkeypatch.delattr("calib.signal.detect", raising=False)
-    with pytest.raises(sg.SegmentError, match="segment table"):
+
+    def failing(accel, gyro, fs):
+        raise ValueError("no static interval found")
+
+    monkeypatch.setattr(sg.detect, "detect_static", failing)
+    with pytest.raises(sg.SegmentError, match="segment table.*static detector failed"):
         sg.static_means(bare, "accel")
 
 

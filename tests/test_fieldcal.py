@@ -16,6 +16,7 @@ from calib.fieldcal import calibrate as fieldcal
 from calib.ingest import importers
 from calib.io import netcdf as ncio
 from calib.io import recording
+from calib.core import earth
 from calib.core import rotations as transforms
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -407,7 +408,7 @@ def test_ferraris_session_b_turns_positive():
         assert turns[ax][i] == pytest.approx(360.0, abs=1e-6)
     assert np.all(np.diag(g.values[:9].reshape(3, 3)) > 0)  # positive rate gives positive counts
     np.testing.assert_allclose(g.scale_factors * math.pi / 180.0, 16.4, rtol=0.03)
-    np.testing.assert_allclose(res.accel.scale_factors * recording.STANDARD_GRAVITY, 2048.0, rtol=0.05)
+    np.testing.assert_allclose(res.accel.scale_factors * earth.STANDARD_GRAVITY, 2048.0, rtol=0.05)
     # the raw turns, bias removed, integrate positive about their labelled axis
     si = ds["segment_index"].values
     for k, lab in enumerate(ds["segment_label"].values):

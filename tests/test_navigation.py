@@ -519,7 +519,7 @@ def test_navigate_recording_counts_with_triad_calibration_and_gyro_compensation(
     w_b, f_b = stationary_rates()
     drift = np.array([0.02, -0.01, 0.015]) * DEG_H
     am, gm = sensors.liu2021_model("accel"), sensors.liu2021_model("gyro")
-    acc_counts = am.forward(f_b / recording.STANDARD_GRAVITY)[None, :].repeat(n, 0) * dt
+    acc_counts = am.forward(f_b / earth.STANDARD_GRAVITY)[None, :].repeat(n, 0) * dt
     gyr_counts = gm.forward((w_b + drift) / DEG_H)[None, :].repeat(n, 0) * dt
     path = _write(tmp_path, "counts.nc", acc_counts, gyr_counts, "count", "count", attrs=ATT_ATTRS)
     cal = navigation.TriadCalibration(am, gm)

@@ -197,7 +197,7 @@ def norm_residual_cov(obj, theta, cov_means):
 
     dr_m / dN_m = -2 u_m^T with u_m = (K E)^-T x_m, axes independent, so
     C_r[m, n] = sum_i 4 u_mi u_ni C_i[m, n], C_i = ``cov_means[i]`` (M, M) [output unit^2] of axis i."""
-    _, _, u = obj._u(theta)
+    _, _, u = obj.input_directions(theta)
     return 4.0 * np.einsum("mi,ni,imn->mn", u, u, np.asarray(cov_means, dtype=float))
 
 
@@ -596,9 +596,3 @@ def gyro_dynamic(pairs: RotationPairs, static: StaticMeans, *, method: str = "id
     res.derived["lgm_rank"] = (rep1.rank, 9)
     res.derived["bias_optimizer"] = r2
     return res
-
-
-DEFAULTS = {
-    "accel": "norm_calibration(static, form='tri9', method='ide_lsq')",
-    "gyro": "gyro_components(pairs, static, bias_from='auto')",
-}

@@ -441,7 +441,7 @@ class NormObjective:
         """Residual vector (M,) at one parameter vector (whitened if weighted)."""
         return self.residuals_pop(np.atleast_2d(np.asarray(theta, dtype=float)))[0]
 
-    def _u(self, theta):
+    def input_directions(self, theta):
         M, b = self.form.KE_b(theta)
         x = np.linalg.solve(M, (self.N - b).T).T  # (M, 3)
         u = np.linalg.solve(M.T, x.T).T  # M^-T x
@@ -449,7 +449,7 @@ class NormObjective:
 
     def jacobian(self, theta):
         """d r / d theta (M, p), analytic: dr = 2 u^T (dM x + db), u = M^-T x (whitened if weighted)."""
-        _, x, u = self._u(theta)
+        _, x, u = self.input_directions(theta)
         dM, db = self.form.derivatives(theta)
         GM = 2.0 * np.einsum("mi,mj->mij", u, x).reshape(self.M, 9)
         J = GM @ dM + 2.0 * u @ db
@@ -461,7 +461,7 @@ class NormObjective:
         """Std of each unweighted residual r_m from the std of N_m: sigma_r^2 = sum_i (2 u_i sigma_i)^2."""
         if self.sigma is None:
             raise ValueError("residual sigmas need the sigma of the static means")
-        _, _, u = self._u(theta)
+        _, _, u = self.input_directions(theta)
         return np.sqrt(np.sum((2.0 * u * self.sigma) ** 2, axis=1))
 
 
@@ -550,13 +550,6 @@ class LgmObjective:
 # ---------------------------------------------------------------------------------------------------------
 # Linear (vector) forms: eq. 25 component form and the classical separate calibration
 # ---------------------------------------------------------------------------------------------------------
-def eq25_residuals(theta_ke9, d, w):
-    """Component form of Liu 2021 eq. 25 as residuals (3J,): d_j - K E w_j, with d_j = N+_j - N-_j and
-    w_j = (2 omega_0^b)_j; zero at the truth for noise-free whole-revolution means."""
-    M, _ = Form("ke9").KE_b(theta_ke9)
-    return (np.asarray(d) - np.asarray(w) @ M.T).ravel()
-
-
 def eq25_solve(d, w, sigma_d=None):
     """K E from rotation-pair differences, Liu 2021 eq. 25 in component form (linear least squares).
 

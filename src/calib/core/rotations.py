@@ -110,9 +110,3 @@ def quat_to_dcm(q):
             [2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3],
         ]
     )
-
-
-def orthonormalize(c):
-    """Nearest orthonormal matrix (polar decomposition via SVD)."""
-    u, _, vt = np.linalg.svd(c)
-    return u @ vt

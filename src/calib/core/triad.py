@@ -74,15 +74,6 @@ class TriadModel:
         return cls(theta[0:3].copy(), E, theta[9:12].copy(), input_unit, output_unit)
 
 
-def ke_from_vector(theta):
-    """K E (3x3) from a parameter vector (vectorised over leading dims: theta (..., 12) -> (..., 3, 3))."""
-    theta = np.asarray(theta, dtype=float)
-    E = np.broadcast_to(np.eye(3), theta.shape[:-1] + (3, 3)).copy()
-    for k, (i, j) in enumerate(OFFDIAG):
-        E[..., i, j] = theta[..., 3 + k]
-    return theta[..., 0:3, None] * E
-
-
 #: "Separate calibration results" of Liu 2021 Table 1 (accelerometers) and Table 3 (gyros):
 #: scale factors, biases, and the two installation-error columns (row i holds E_i,j for j != i in order).
 LIU2021_ACCEL = {

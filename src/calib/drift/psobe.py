@@ -24,6 +24,8 @@ from calib.core import earth
 from calib.io import recording
 from calib.nav import strapdown
 from calib.core.earth import DEG_PER_H
+from calib.drift.pso import accuracy
+from calib.nav import errormodel
 
 POSITION_UNITS = ("arcmin", "m", "rad")
 ARCMIN = math.pi / 180.0 / 60.0
@@ -159,7 +161,6 @@ class NavigationCost:
 
 def table1(estimates, reference):
     """He et al. (2019) Table 1: max, min, mean, std per axis, the reference, and Ac (eq. 19) of the mean."""
-    from calib.drift.pso import accuracy
 
     est = np.asarray(estimates, float)
     ref = np.asarray(reference, float)
@@ -237,7 +238,6 @@ def kalman_drift(y, dt_out, lat, C_bn, arw_rad_rts, condition="true_attitude", h
     ``dt_sample``, PSD white^2 dt_sample). ``sigma_v``, ``sigma_p_rad``: a small measurement noise floor
     (the limit does not depend on it once it is well below the process-noise effects: see the tests).
     """
-    from calib.nav import errormodel
 
     C = np.asarray(C_bn, float)
     g = float(earth.normal_gravity(lat, h))
@@ -343,7 +343,6 @@ def longitude_noise_sigma(T_s, lat, C_bn, arw_rad_rts, white_rad_s=0.0, dt_sampl
     var = q sum_k int_0^T h_k(t)^2 dt, with h_k = d s_k / dt the impulse response of longitude to a drift on
     body axis k (s_k from :func:`calib.nav.errormodel.sensitivity`).
     """
-    from calib.nav import errormodel
 
     t = np.arange(0.0, T_s + step_s, step_s)
     S = errormodel.sensitivity(t, lat, C_bn, h)[:, 6, :3]  # (N, 3) longitude per unit drift

@@ -18,6 +18,7 @@ import netCDF4
 import xarray as xr
 
 from calib.io.atomic import atomic_path, temp_path
+from calib import __version__
 
 ENGINE = "netcdf4"
 
@@ -42,7 +43,6 @@ def config_hash(cfg) -> str:
 
 def provenance(rule: str = "", cfg=None, seed=None) -> dict:
     """Provenance attributes carried by every scientific netCDF file."""
-    from calib import __version__
 
     attrs = {"calib_version": __version__, "git_commit": git_commit(), "made_by_rule": rule or "cli"}
     if cfg is not None:

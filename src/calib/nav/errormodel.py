@@ -53,7 +53,6 @@ from calib.core.rotations import dcm_to_euler, rot_x, rot_z, skew
 
 STATE_NAMES = ("phi_E", "phi_N", "phi_U", "vE_err", "vN_err", "lat_err", "lon_err")
 STATE_UNITS = ("rad", "rad", "rad", "m s-1", "m s-1", "rad", "rad")
-INPUT_NAMES = ("eps_x", "eps_y", "eps_z", "nabla_x", "nabla_y", "nabla_z")
 NX, NU = 7, 6
 
 

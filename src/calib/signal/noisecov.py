@@ -66,6 +66,7 @@ import numpy as np
 from scipy import optimize
 
 from calib.signal import allan
+from calib.signal.segments import SegmentError, rate_reading
 
 #: quantisation phase noise of a pulse counter with the fraction carried [count]: uniform remainder in [0, 1)
 PULSE_COUNTER_Q = 1.0 / math.sqrt(12.0)
@@ -366,7 +367,6 @@ def is_pulse_counter(ds, sensor: str) -> bool:
 
 def long_record_allan(ds, sensor: str, *, confidence: float = 0.95) -> allan.AllanResult:
     """Overlapping Allan deviation of the whole of a static recording (tau up to half its length)."""
-    from calib.signal.segments import SegmentError, rate_reading
 
     y, unit = rate_reading(ds, sensor)
     try:

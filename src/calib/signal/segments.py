@@ -26,6 +26,7 @@ from calib.core import earth
 from calib.core.earth import STANDARD_GRAVITY
 from calib.io.recording import unit_factor
 from calib.core.triad import INPUT_UNITS
+from calib.signal import detect
 
 
 class SegmentError(ValueError):
@@ -253,11 +254,6 @@ def _segment_table(ds):
         labels = ([str(s) for s in ds["segment_label"].values] if "segment_label" in ds
                   else [f"segment {i}" for i in range(len(kinds))])
         return si, kinds, labels
-    try:
-        from calib.signal import detect  # the static detector (calib.detect); optional
-    except ImportError as exc:
-        raise SegmentError(f"{_where(ds)}: no segment table (segment_index / segment_kind) and no static detector "
-                           "(calib.signal.detect) available - add the segment table to the recording") from exc
     acc, _ = rate_reading(ds, "accel")
     gyr, _ = rate_reading(ds, "gyro")
     try:

@@ -59,6 +59,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from calib.core.earth import STANDARD_GRAVITY
+from calib.core.earth import normal_gravity
 
 UG = 1e-6     # micro-g in g
 PPM = 1e-6
@@ -183,7 +184,6 @@ def _temperature(ctx: SensorContext, p):
 # ---- truth (world) effects ------------------------------------------------------------------------
 
 def _latitude_error(site: SiteTruth, p) -> SiteTruth:
-    from calib.core.earth import normal_gravity
 
     lat = site.latitude_deg + float(p["delta_lat_deg"])
     if not -90.0 <= lat <= 90.0:

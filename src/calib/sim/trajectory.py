@@ -424,8 +424,3 @@ class Trajectory:
         f_b = g * cbn[:, 2, :]  # C_n^b (0, 0, g) = g * third row of C_b^n
         angle = self.ang0[idx] + np.degrees(theta)
         return Kinematics(t, cbn, w_ib, f_b, w_nb, dw_nb, angle, idx)
-
-
-def true_kinematics(plan, t, lat_rad: float, height_m: float = 0.0, gravity_m_s2: float | None = None) -> Kinematics:
-    """Convenience wrapper: ``Trajectory(plan).kinematics(t, ...)``."""
-    return Trajectory(plan).kinematics(t, lat_rad, height_m, gravity_m_s2)

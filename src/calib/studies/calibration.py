@@ -23,6 +23,7 @@ from calib.signal import segments
 from calib.io.netcdf import write_netcdf
 from calib.core.progress import Progress
 from calib.core.triad import PARAM_NAMES, TriadModel
+from calib.studies import stages
 
 #: how the DE variants of Liu 2021 map to the figures
 FIGURE_OF = {"de_rand1": 2, "de_current_to_best1": 3, "de_integration": 4, "ide": 5}
@@ -154,7 +155,7 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     timing["extract_s"] = time.perf_counter() - t0
     log(f"{inp.accel_static.n} static positions, {0 if inp.gyro_pairs is None else inp.gyro_pairs.n} rotation pairs")
     truth = json.loads(Path(truth_path).read_text()) if truth_path else None
-    true_vec = {s: _truth_vector(truth, s) for s in ("accel", "gyro")} if truth else {"accel": None, "gyro": None}
+    true_vec = {s: truth_vector(truth, s) for s in ("accel", "gyro")} if truth else {"accel": None, "gyro": None}
     _noise_products(inp, out, prov)
 
     methods = list(ccfg["methods"])
@@ -217,7 +218,7 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     return metrics
 
 
-def _truth_vector(truth, sensor):
+def truth_vector(truth, sensor):
     try:
         t = truth["sensor"][sensor]
     except (KeyError, TypeError):
@@ -495,7 +496,6 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
     k``; 'shared' uses ``noise_record``) from the noise model with the slow part; the z-scores of the
     segment-only sigma (today's behaviour without a record) are reported next to them for the same seeds
     (columns ``*_segment_sigma``). Without a record only the segment-only z-scores (``mean_z``, ``std_z``)."""
-    from calib.studies import stages
 
     mode = z_noise_mode(ccfg)
     if mode == "per_seed" and check is None:
@@ -526,7 +526,7 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
             ltru.unlink()
         elif mode == "shared":
             noise = noise_models(inp, shared, ccfg)
-        ta = _truth_vector(truth, "accel")
+        ta = truth_vector(truth, "accel")
         Mt, bt = ob.Form("paper12").KE_b(ta)
         L, _ = ob.lower_triangular_gauge(Mt)
         t9 = ob.Form("tri9").from_KE_b(L, bt)
@@ -537,7 +537,7 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
             d = default_calibration(inp, ccfg, seed0 + k, noise=nz)
             z[key]["accel"].append((d["accel"].x - t9) / d["accel"].se)
             g = d["gyro"]
-            tg = _match(g, _truth_vector(truth, "gyro")) if tg is None else tg
+            tg = _match(g, truth_vector(truth, "gyro")) if tg is None else tg
             z[key]["gyro"].append((g.x - tg) / g.se)
             names = {"accel": d["accel"].names, "gyro": g.names}
         bar(k + 1)

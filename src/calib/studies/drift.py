@@ -21,6 +21,10 @@ from calib.nav import strapdown
 from calib.core.earth import DEG_PER_H
 from calib.io.netcdf import write_netcdf
 from calib.core.progress import Progress
+from calib.nav import errormodel
+from calib.sim import simulator as simulate
+from calib.signal import allan
+from calib.core.rotations import dcm_to_euler
 
 AXES = ["x", "y", "z"]
 #: He 2019 Table 1 (PSOBE, 50 tests) and its Ac values (§IV.A), for comparison
@@ -29,11 +33,11 @@ PAPER_TABLE1 = {"max": [-0.01032, 0.01077, 0.01079], "min": [-0.01048, 0.01067, 
                 "Ac_pct": [96.2, 92.7, 95.4]}
 
 
-def _attitude_rad(att: dict):
+def attitude_rad(att: dict):
     return tuple(math.radians(att[k]) for k in ("pitch", "roll", "yaw"))
 
 
-def _noise_psd(session: dict):
+def noise_psd(session: dict):
     """Process-noise parameters of the session for the linear error model: (ARW [rad/sqrt(s)], white [rad/s])."""
     gn = session["gyro_noise"]
     if gn["model"] == "arw":
@@ -45,7 +49,7 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
                   session: dict, site: dict, nav: dict, dcfg: dict, seed: int, prov=None, log=print):
     """The 50 repeated PSOBE tests on one noise realisation, with the noise limit and the baselines."""
     t_start = time.perf_counter()
-    att = _attitude_rad(session["attitude_deg"])
+    att = attitude_rad(session["attitude_deg"])
     win = drift.load_window(recording_path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
     log(f"window: {win.n_samples} samples ({dcfg['window_h']} h) pre-integrated to {len(win.Dtheta)} steps "
         f"of {win.dt_nav} s in {time.perf_counter() - t_start:.1f} s")
@@ -74,7 +78,7 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
             f"tests (axes {[AXES[i] for i in np.where(pinned.any(0))[0]]}): widen drift.pso.lower/upper")
 
     # ---- noise limit, for the configured noise, window and initial condition ----
-    arw, white = _noise_psd(session)
+    arw, white = noise_psd(session)
     C = win.init.cbn()
     dt_out = cost.out_every * win.dt_nav
     cond = dcfg["initial_condition"]
@@ -213,7 +217,7 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
         crb = p["crb"].values
     truth = np.asarray(session["gyro_drift_deg_h"], float)
     h = recording.read_header(recording_path)
-    att = _attitude_rad(session["attitude_deg"])
+    att = attitude_rad(session["attitude_deg"])
     lat0, lon0 = math.radians(h.latitude_deg), math.radians(site.get("longitude_deg", 0.0))
     init = strapdown.NavInit(lat=lat0, lon=lon0, h=h.height_m, pitch=att[0], roll=att[1], yaw=att[2])
     n_sub = int(round(h.sample_rate_hz / nav["nav_rate_hz"]))
@@ -260,7 +264,6 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
         polar = resid[1] * math.cos(lat0) + resid[2] * math.sin(lat0)
         # the linear error model's longitude response to the residual drift (and the true accelerometer bias)
         # at the end; its secular part grows at the drift component along the Earth's axis
-        from calib.nav import errormodel
 
         ab = np.asarray(session.get("accel_bias_m_s2", [0.0, 0.0, 0.0]), float)
         T_end = t_h[-1] * 3600.0
@@ -274,7 +277,7 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
                          "residual_polar_drift_deg_h": float(polar / DEG_PER_H),
                          "max_abs_vE_m_s": float(np.abs(ds["vE_err"].values[s]).max()),
                          "max_abs_vN_m_s": float(np.abs(ds["vN_err"].values[s]).max())}
-    arw, white = _noise_psd(session)
+    arw, white = noise_psd(session)
     sig = drift.longitude_noise_sigma(t_h[-1] * 3600.0, lat0, C, arw, white, h.dt) * arcmin
     for name in names:
         m = metrics[name]
@@ -329,13 +332,12 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
     estimated; z = (estimate - truth) / bound. Acceptance: |z| <= 2 in a share of seeds inside the binomial
     99 % band around 95 %, and std(z) in 0.85-1.15.
     """
-    from calib.sim import simulator as simulate
 
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     truth = np.asarray(session["gyro_drift_deg_h"], float)
-    att = _attitude_rad(session["attitude_deg"])
-    arw, white = _noise_psd(session)
+    att = attitude_rad(session["attitude_deg"])
+    arw, white = noise_psd(session)
     cond = dcfg["initial_condition"]
     est = {"kalman": np.empty((n_seeds, 3)), "lls_with_accel_bias": np.empty((n_seeds, 3))}
     crb = None
@@ -401,8 +403,6 @@ def run_real_drift(recording_path, out_json, fig, metrics_path, rcfg: dict, seed
     gyro output over the same window: they may differ by the Earth rate seen by the gyros (|omega_ie^b| <=
     Omega at an unknown heading and latitude) plus 2 Allan-deviation sigma of the window mean.
     """
-    from calib.signal import allan
-    from calib.core.rotations import dcm_to_euler
 
     h = recording.read_header(recording_path)
     win_s = float(rcfg["window_s"])

@@ -13,6 +13,8 @@ from calib.figures import style as figures
 from calib.nav import navigation
 from calib.io.netcdf import write_netcdf
 from calib.core.triad import TriadModel
+from calib.io.recording import read_header
+from calib.core.progress import Progress
 
 
 def _median_run(path):
@@ -101,8 +103,6 @@ def load_calibration(nc_path):
 
 def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print):
     """Navigate one recording (streamed, progress in the log) and write the labelled error dataset."""
-    from calib.io.recording import read_header
-    from calib.core.progress import Progress
 
     cal = load_calibration(calibration_nc) if calibration_nc else None
     bar = Progress(read_header(recording_path).n_samples, f"navigating {Path(recording_path).name}")

@@ -8,6 +8,8 @@ from __future__ import annotations
 import time
 
 from calib.io.netcdf import provenance
+from calib.sim import simulator as simulate
+from calib.core.progress import Progress
 
 CAL_SESSION_KEYS = ("sample_rate_hz", "dwell_s", "step_deg", "positions_per_phase", "rotation_rates_deg_s",
                     "revolutions", "rotation_axes", "transition_s", "move_rate_deg_s", "sensor", "noise", "effects",
@@ -20,7 +22,6 @@ def _site(site):
 
 def simulate_calibration(session: dict, site: dict, seed: int, out, truth, rule="cli"):
     """Data stage: the Liu 2021 calibration session (24 positions + ± rotations)."""
-    from calib.sim import simulator as simulate
 
     cfg = {k: session[k] for k in CAL_SESSION_KEYS if k in session}
     cfg["site"] = _site(site)
@@ -31,8 +32,6 @@ def simulate_calibration(session: dict, site: dict, seed: int, out, truth, rule=
 
 def simulate_static_check(check: dict, session: dict, site: dict, seed: int, out, truth, rule="cli"):
     """Data stage: a static recording (counts) of the calibrated unit for Liu 2021's navigation check."""
-    from calib.sim import simulator as simulate
-    from calib.core.progress import Progress
 
     cfg = {k: session[k] for k in ("sample_rate_hz", "sensor", "noise", "effects", "conceal", "temperature")
            if k in session}
@@ -44,8 +43,6 @@ def simulate_static_check(check: dict, session: dict, site: dict, seed: int, out
 
 def simulate_navigation(session: dict, site: dict, seed: int, out, truth, rule="cli"):
     """Data stage: He 2019 §IV.A stationary navigation data (physical increments, chunked)."""
-    from calib.sim import simulator as simulate
-    from calib.core.progress import Progress
 
     cfg = dict(session)
     cfg.update(mode="physical", site=_site(site))

@@ -40,6 +40,20 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.studies import stages
+from calib.io.netcdf import write_netcdf
+from calib.calibration import fit as cal
+from calib.calibration import objectives as ob
+from calib.io import recording
+from calib.signal import segments
+from calib.studies.calibration import truth_vector, method_options
+from calib.core.triad import PARAM_NAMES
+from calib.drift import psobe as drift
+from calib.drift import pso
+from calib.studies.drift import attitude_rad, noise_psd
+from calib.core.earth import DEG_PER_H
+from calib.figures import style as figures
+
 KINDS = ("calibration", "drift_pso")
 PROBLEMS = ("accel", "gyro_static", "gyro_dynamic")
 
@@ -303,7 +317,6 @@ def load_all(paths, study: dict, sweep_schema, study_schema=None) -> dict:
 # ---------------------------------------------------------------------------------------------------------
 def simulate_session(scfg: dict, out, truth, rule="sweep_session"):
     """The synthetic session of one group of points (``scfg`` from :meth:`Sweep.session_config`)."""
-    from calib.studies import stages
 
     if scfg["kind"] == "calibration":
         stages.simulate_calibration(scfg["session"], scfg["site"], scfg["seed"], out, truth, rule=rule)
@@ -320,14 +333,12 @@ def run_point(kind: str, recording_path, truth_path, cfg: dict, values: dict, ou
     else:
         raise SweepError(f"unknown sweep kind {kind!r}; one of {', '.join(KINDS)}")
     ds.attrs["point"] = json.dumps(values, sort_keys=True)
-    from calib.io.netcdf import write_netcdf
 
     write_netcdf(ds, out_nc, prov)
     return ds
 
 
 def _problem_fn(inp, problem):
-    from calib.calibration import fit as cal
 
     if problem == "accel":
         return lambda m, rng, budget, opts: cal.norm_calibration(inp.accel_static, form="paper12", method=m, rng=rng,
@@ -348,11 +359,6 @@ def calibration_point(recording_path, truth_path, cfg: dict, log=print):
 
     import xarray as xr
 
-    from calib.calibration import objectives as ob
-    from calib.io import recording
-    from calib.signal import segments
-    from calib.studies.calibration import _truth_vector, method_options
-    from calib.core.triad import PARAM_NAMES
 
     ccfg, sw = cfg["calibration"], cfg["sweep"]
     method, problem = sw["method"], sw["problem"]
@@ -383,7 +389,7 @@ def calibration_point(recording_path, truth_path, cfg: dict, log=print):
     success = L <= L_star * (1.0 + tol)
     sensor = "accel" if problem == "accel" else "gyro"
     truth = json.loads(Path(truth_path).read_text()) if truth_path else None
-    tv = _truth_vector(truth, sensor) if truth else None
+    tv = truth_vector(truth, sensor) if truth else None
     gram_err = np.full(R, np.nan)
     bias_err = np.full((R, 3), np.nan)
     if tv is not None:
@@ -419,13 +425,9 @@ def drift_point(recording_path, cfg: dict, log=print):
     """``tests`` PSOBE runs against the noise limit and the minimiser of J; see the module docstring."""
     import xarray as xr
 
-    from calib.drift import psobe as drift
-    from calib.drift import pso
-    from calib.studies.drift import _attitude_rad, _noise_psd
-    from calib.core.earth import DEG_PER_H
 
     session, site, dcfg = cfg["navigation_session"], cfg["site"], cfg["drift"]
-    att = _attitude_rad(session["attitude_deg"])
+    att = attitude_rad(session["attitude_deg"])
     win = drift.load_window(recording_path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
     cost = drift.NavigationCost(win, dcfg["output_interval_s"], dcfg["weights"], dcfg["position_unit"])
     settings = pso.PSOSettings.from_config(dcfg["pso"])
@@ -444,7 +446,7 @@ def drift_point(recording_path, cfg: dict, log=print):
     J_min = float(cost(eps_min[None, :])[0])  # J of the linearised minimiser, by navigation
     if J.min() < J_min:  # a test did better (the errors are not exactly linear in the drift): use it
         eps_min, J_min = est[int(np.argmin(J))].copy(), float(J.min())
-    arw, white = _noise_psd(session)
+    arw, white = noise_psd(session)
     dt_out = cost.out_every * win.dt_nav
     crb = drift.noise_limit(dcfg["window_h"], dt_out, win.lat0, win.init.cbn(), arw, dcfg["initial_condition"],
                             win.h0, white, 1.0 / win.sample_rate_hz)[0] / DEG_PER_H
@@ -484,7 +486,6 @@ def argmin_J(cost, lower: float, upper: float, step_deg_h: float = 0.01):
     """
     from scipy.optimize import linprog
 
-    from calib.drift import psobe as drift
 
     kl, kn = drift.position_scale(cost.unit, cost.win.lat0, cost.win.h0)
     X = np.vstack([np.zeros(3), step_deg_h * np.eye(3)])
@@ -536,7 +537,6 @@ def gather(kind: str, name: str, paths, values: list[dict], columns: list[str], 
     for c in columns:
         ds[c].attrs["long_name"] = f"swept: {c}"
     ds.attrs.update({"sweep": name, "kind": kind, "swept": json.dumps(columns), **(attrs or {})})
-    from calib.io.netcdf import write_netcdf
 
     write_netcdf(ds, out_nc, prov)
     rows = [",".join(columns + list(SUMMARY[kind]))]
@@ -563,7 +563,6 @@ def summary_figure(ds, kind, name, columns, path):
     (seeds); a line plot when fewer than two budget axes are swept."""
     import matplotlib.pyplot as plt
 
-    from calib.figures import style as figures
 
     if kind == "calibration":
         y, x = "NP", "EG"

@@ -15,6 +15,8 @@ import json
 import os
 from pathlib import Path
 
+from calib.io.netcdf import config_hash, git_commit
+
 
 class TrackingError(RuntimeError):
     """The tracking store cannot be reached; scientific outputs are left as they are."""
@@ -109,7 +111,6 @@ def collect(results_dir, config: dict, run_name: str = "", experiment="calib", a
     try:
         client = mlflow.MlflowClient(uri)
         exp = client.get_experiment_by_name(experiment)
-        from calib.io.netcdf import config_hash, git_commit
 
         run = client.create_run(exp.experiment_id, run_name=run_name or f"study-{config_hash(config)}",
                                 tags={"config_hash": config_hash(config), "git_commit": git_commit()})
