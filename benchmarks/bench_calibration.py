@@ -15,7 +15,7 @@ Prints
 
 Data: synthetic static means at Liu 2021's 24 attitudes and the 9 rotation pairs (10/20/30 deg/s about x, y, z)
 from Liu 2021's Table 1 / 3 parameters, white noise sigma = 0.5 count s-1 (accel means, ~36 micro-g) and
-80 count s-1 (gyro means, ~0.01 deg/h). Run r of problem p uses numpy.random.default_rng(seed + 1000 p + r).
+80 count s-1 (gyro means, ~0.01 deg/h). Run r of method m on problem p uses the stream calib.core.seeds.child_seed(seed, p, m, r).
 
 Success: the optimiser's result is statistically indistinguishable from the global optimum L* (the best of all
 runs after a least-squares polish): the Mahalanobis distance of its solution from the optimum, estimated from
@@ -39,6 +39,7 @@ from calib.calibration import objectives as ob
 from calib.calibration import optimizers as opt
 from calib.signal import segments as sg
 from calib.core.triad import liu2021_bounds, liu2021_model
+from calib.core import seeds
 
 METHODS = ["de_rand1", "de_current_to_best1", "de_integration", "ide", "ide_lsq", "ga", "pso", "scipy_de", "lsq"]
 PROBLEMS = ["accel_paper12", "accel_tri9", "gyro_lgm"]
@@ -123,7 +124,7 @@ def timings(budget):
 def comparison(runs, workers, budget, seed, scipy_runs):
     print(f"\n== 4. {runs}-run comparison ({scipy_runs} runs for scipy_de), budget NP={budget[0]} EG={budget[1]} "
           f"({workers} workers) ==")
-    tasks = [(p, m, seed + 1000 * i + r, budget) for i, p in enumerate(PROBLEMS) for m in METHODS
+    tasks = [(p, m, seeds.child_seed(seed, p, m, r), budget) for p in PROBLEMS for m in METHODS
              for r in range(scipy_runs if m == "scipy_de" else runs)]
     tasks.sort(key=lambda t: t[1] != "scipy_de")  # the long ones first: better load balance
     t0 = time.perf_counter()

@@ -94,7 +94,7 @@ def test_points_sessions_and_point_config(tmp_path):
         assert n1[k] == pytest.approx(10 * n0[k])
     assert n1["accel_bias_corr_time_s"] == n0["accel_bias_corr_time_s"]
     sc = s.session_config("noise_scale~10_seed~3")
-    assert sc["seed"] == 3 and sc["session"]["noise"] == n1
+    assert sc["seed"] == stages.session_seed(3, "calibration_session") and sc["session"]["noise"] == n1
     with pytest.raises(sweeps.SweepError, match="not a point"):
         s.values("NP~999")
 
@@ -102,8 +102,9 @@ def test_points_sessions_and_point_config(tmp_path):
                                 "grid": {"particles": [4], "generations": [2, 3]}}, "d.yaml"))
     assert d.sessions == ["session~base"] and d.session_of(d.points[1]) == "session~base"
     c = d.point_config(d.points[1])
-    # the main study's navigation session uses seeds.data + 2; the session is exactly the window
-    assert c["seeds"]["data"] == study["seeds"]["data"] + 2
+    # the session's noise is the study's navigation_session stream of seeds.data; the session is exactly the window
+    assert c["seeds"]["data"] == study["seeds"]["data"]
+    assert d.session_config(d.sessions[0])["seed"] == stages.session_seed(study["seeds"]["data"], "navigation_session")
     assert c["navigation_session"]["duration_h"] == 0.7 and c["drift"]["pso"]["generations"] == 3
 
 

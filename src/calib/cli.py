@@ -38,7 +38,8 @@ def cmd_simulate(a):
     from calib.studies import stages
 
     cfg = _config(a.config)
-    seed = cfg["seeds"]["data"] if a.seed is None else a.seed
+    key = {"calibration": "calibration_session", "navigation": "navigation_session"}.get(a.kind, a.kind)
+    seed = stages.session_seed(cfg["seeds"]["data"], key) if a.seed is None else a.seed
     truth = a.truth or str(Path(a.out).with_suffix(".truth.json"))
     if a.kind == "calibration":
         stages.simulate_calibration(cfg["calibration_session"], cfg["site"], seed, a.out, truth)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from calib.core import seeds
 from calib.io import recording
 from calib.sim import simulator
 from calib.studies import diagnosis as diagnosis_study
@@ -78,7 +79,7 @@ def test_proof_stage_products(tmp_path):
                                       power_seeds=2, workers=1, base=base, site=SHORT["site"], log=lambda *a: None,
                                       metrics_path=tmp_path / "proof.metrics.json")
     nc = xr.open_dataset(tmp_path / "proof.nc")
-    assert list(nc["session"].values) == ["null_a", "time_offset"] and list(nc["seed"].values) == [7, 8, 9]
+    assert list(nc["session"].values) == ["null_a", "time_offset"] and list(nc["seed"].values) == [seeds.child_seed(7, "noise", k) for k in range(3)]
     assert int(nc["false_discovery"].sel(session="null_a").sum()) == 0
     assert int(nc["n_found"].sel(session="null_a").sum()) == 0
     assert nc["correct"].sel(session="time_offset").values.tolist() == [1, 1, 1]

@@ -47,7 +47,7 @@ rule calibration_z:
         site=sub("site"),
         calibration=sub("calibration"),
         check=sub("static_check"),
-        seed=config["seeds"]["data"] + 5000,
+        seed=session_seed(config["seeds"]["data"], "calibration_z"),
         workdir=lambda w, output: os.path.join(os.path.dirname(output.table), "tmp_zscores"),
     log:
         f"{R}/logs/calibration_z.log",

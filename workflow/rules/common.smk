@@ -3,6 +3,8 @@ import glob
 import json
 import os
 
+from calib.studies.stages import session_seed
+
 R = config["results"]
 CAL = config["calibration"]
 DIAG = config.get("diagnosis", {})

@@ -8,7 +8,7 @@ rule simulate_calibration_session:
     params:
         session=sub("calibration_session"),
         site=sub("site"),
-        seed=config["seeds"]["data"],
+        seed=session_seed(config["seeds"]["data"], "calibration_session"),
     log:
         f"{R}/logs/simulate_calibration_session.log",
     benchmark:
@@ -27,7 +27,7 @@ rule simulate_static_check:
         check=sub("static_check"),
         session=sub("calibration_session"),
         site=sub("site"),
-        seed=config["seeds"]["data"] + 1,
+        seed=session_seed(config["seeds"]["data"], "static_check"),
     log:
         f"{R}/logs/simulate_static_check.log",
     benchmark:
@@ -45,7 +45,7 @@ rule simulate_navigation_session:
     params:
         session=sub("navigation_session"),
         site=sub("site"),
-        seed=config["seeds"]["data"] + 2,
+        seed=session_seed(config["seeds"]["data"], "navigation_session"),
     log:
         f"{R}/logs/simulate_navigation_session.log",
     benchmark:

@@ -63,7 +63,7 @@ rule drift_noise_seeds:
         session=sub("navigation_session"),
         site=sub("site"),
         drift=sub("drift"),
-        seed=config["seeds"]["data"] + 1000,
+        seed=session_seed(config["seeds"]["data"], "drift_noise_seeds"),
         workdir=lambda w, output: os.path.join(os.path.dirname(output.nc), "tmp_noise_seeds"),
     threads: 2
     log:

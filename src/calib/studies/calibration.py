@@ -24,6 +24,7 @@ from calib.io.netcdf import write_netcdf
 from calib.core.progress import Progress
 from calib.core.triad import PARAM_NAMES, TriadModel
 from calib.studies import stages
+from calib.core import seeds
 
 #: how the DE variants of Liu 2021 map to the figures
 FIGURE_OF = {"de_rand1": 2, "de_current_to_best1": 3, "de_integration": 4, "ide": 5}
@@ -65,7 +66,7 @@ def _runs(problem, method, ccfg, seed0, progress=None):
     opts = method_options(method, ccfg)
     out = []
     for r in range(R):
-        rng = np.random.default_rng(seed0 + r)
+        rng = seeds.stream(seed0, "run", r)
         out.append(problem(method, rng, (NP, EG), opts))
         if progress:
             progress()
@@ -164,7 +165,7 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     bar = Progress(len(methods) * 3, "method x problem blocks")
 
     keys = ["accel", "gyro_static"] + (["gyro_dynamic"] if inp.gyro_pairs is not None else [])
-    tasks = [(key, m, seed + 1000 * i) for key in keys for i, m in enumerate(methods)]
+    tasks = [(key, m, seeds.child_seed(seed, "method", m)) for key in keys for m in methods]
     results = _map_tasks(inp, ccfg, tasks, workers, bar)
     for (key, m, _), (res, dt) in zip(tasks, results):
         timing[f"{key}_{m}_s"] = dt
@@ -180,7 +181,7 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     # ---- the best-known optimum: multi-start least squares ----
     best = {}
     for key, problem in problems.items():
-        ls = [problem("lsq", np.random.default_rng(seed + 99_000 + r), (ccfg["NP"], EG), {}) for r in range(10)]
+        ls = [problem("lsq", seeds.stream(seed, "lsq_multistart", r), (ccfg["NP"], EG), {}) for r in range(10)]
         best[key] = min(min(r.L for r in ls), min(float(np.min(v[1])) for k, v in runs.items() if k[0] == key))
     tol = float(ccfg.get("success_rel_tol", 0.01))
     success = {k: float(np.mean(v[1] <= best[k[0]] * (1.0 + tol)) * 100.0) for k, v in runs.items()}
@@ -356,7 +357,7 @@ def default_calibration(inp, ccfg, seed, noise: dict | None = None):
     ``noise_note`` says the bias instability is not included."""
     method = ccfg["default_method"]
     covs = noisecov.observation_covs(inp, noise) if noise is not None else {"accel_static": None, "gyro_eq25": None}
-    acc = cal.norm_calibration(inp.accel_static, form="tri9", method=method, rng=np.random.default_rng(seed + 5),
+    acc = cal.norm_calibration(inp.accel_static, form="tri9", method=method, rng=seeds.stream(seed, "default_calibration"),
                                budget=(ccfg["NP"], ccfg["EG"]), cov_means=covs["accel_static"],
                                **method_options(method, ccfg))
     if noise is None:
@@ -492,7 +493,7 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
     identified 9-parameter norm form against the truth in the same gauge; gyros: eq. 25 components.
 
     Standard errors (:func:`default_calibration`): with a long static record (:func:`z_noise_mode`: 'per_seed'
-    simulates one per seed from the ``check`` config, i.e. the static_check settings, seed ``seed0 + 100000 +
+    simulates one per seed from the ``check`` config, i.e. the static_check settings, seed ``child_seed(seed0, "noise_record", k)``
     k``; 'shared' uses ``noise_record``) from the noise model with the slow part; the z-scores of the
     segment-only sigma (today's behaviour without a record) are reported next to them for the same seeds
     (columns ``*_segment_sigma``). Without a record only the segment-only z-scores (``mean_z``, ``std_z``)."""
@@ -512,7 +513,7 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
     bar = Progress(n_seeds, "noise seeds")
     for k in range(n_seeds):
         rec, tru = workdir / f"s{k}.nc", workdir / f"s{k}.truth.json"
-        stages.simulate_calibration(session, site, seed0 + k, rec, tru)
+        stages.simulate_calibration(session, site, seeds.child_seed(seed0, "session", k), rec, tru)
         truth = json.loads(tru.read_text())
         inp = segments.extract(recording.load(rec))
         rec.unlink()
@@ -520,7 +521,7 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
         noise = None
         if mode == "per_seed":
             lrec, ltru = workdir / f"l{k}.nc", workdir / f"l{k}.truth.json"
-            stages.simulate_static_check(check, session, site, seed0 + 100_000 + k, lrec, ltru)
+            stages.simulate_static_check(check, session, site, seeds.child_seed(seed0, "noise_record", k), lrec, ltru)
             noise = noise_models(inp, recording.load(lrec), ccfg)
             lrec.unlink()
             ltru.unlink()
@@ -534,7 +535,7 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
         for key, nz in (("segment", None), ("with", noise)):
             if key == "with" and noise is None:
                 continue
-            d = default_calibration(inp, ccfg, seed0 + k, noise=nz)
+            d = default_calibration(inp, ccfg, seeds.child_seed(seed0, "calibration", k), noise=nz)
             z[key]["accel"].append((d["accel"].x - t9) / d["accel"].se)
             g = d["gyro"]
             tg = _match(g, truth_vector(truth, "gyro")) if tg is None else tg

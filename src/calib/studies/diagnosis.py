@@ -75,7 +75,7 @@ def proof_dataset(out: dict) -> xr.Dataset:
     """Every seed's outcome of the proof as a labelled dataset (dims ``session``, ``seed``; ``power_point``)."""
     results = [r for r in out["_results"] if r["scale"] == 1.0]
     sessions = [r["name"] for r in results]
-    seeds = sorted({x["seed"] for r in results for x in r["rows"]})
+    seeds = list(dict.fromkeys(x["seed"] for r in results for x in r["rows"]))  # in draw order (k = 0, 1, ...)
     shape = (len(sessions), len(seeds))
     var = {k: np.full(shape, np.nan) for k in ("chi2_before", "chi2_after", "chi2_after_p", "coverage")}
     ints = {k: np.full(shape, -1, dtype=np.int8) for k in ("correct", "named_exactly", "false_discovery",

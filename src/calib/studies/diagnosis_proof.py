@@ -29,6 +29,7 @@ from calib.io.atomic import write_json as write_json_atomic, write_text as write
 from calib.sim import effects as sim_effects
 from calib.sim import simulator
 from calib.studies.diagnosis_score import score
+from calib.core import seeds
 
 #: the simulator's defaults at 30.58 deg: the base of the proof sessions unless the study gives its own
 SESSION_BASE = {"site": {"latitude_deg": 30.58, "height_m": 0.0}}
@@ -132,7 +133,7 @@ def _binom_ci(k, n, conf=0.99):
 
 def _proof_worker(args):
     """One session over its seeds (runs in a worker process)."""
-    name, seeds, out_dir, settings, scale, eff_override, base = args
+    name, seed_list, out_dir, settings, scale, eff_override, base = args
     kind = PROOF_SESSIONS[name][0]
     cfg = proof_config(name, eff_override, base)
     t0 = time.perf_counter()
@@ -149,7 +150,7 @@ def _proof_worker(args):
         st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False}
         prob0 = None
         rows = []
-        for sd in seeds:
+        for sd in seed_list:
             ts = time.perf_counter()
             ds = fsn.dataset(sd)
             rep, prob = diagnose_dataset(ds, None, st, path=f"{name} seed {sd}", library_from=prob0)
@@ -161,7 +162,7 @@ def _proof_worker(args):
             sc["found_detail"] = [{"key": f["key"], "aliases": [a["key"] for a in f["aliases"]],
                                    "delta_bic": f.get("delta_bic")} for f in rep.get("found", [])]
             rows.append(sc)
-            if sd == seeds[0] and out_dir and scale == 1.0 and prob is not None:
+            if sd == seed_list[0] and out_dir and scale == 1.0 and prob is not None:
                 res_fits = prob.last_fits
                 if res_fits is not None:
                     residual_figure(prob, res_fits, Path(out_dir) / "figures" / f"residuals_{name}.png",
@@ -218,7 +219,7 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
 
     For every session of :data:`PROOF_SESSIONS` (or the names in ``effects``): one recording made by the
     simulator itself (``simulate_calibration_session``, ``conceal: true``, truth sidecar) is diagnosed end to
-    end from its file; then ``n_seeds`` noise seeds (``seed`` .. ``seed + n_seeds - 1``) are generated with the
+    end from its file; then ``n_seeds`` noise seeds (``child_seed(seed, "noise", k)``, k < n_seeds) are generated with the
     simulator's own noise and pulse-counter kernel on the session's clean signal (:class:`FastSession`,
     bit-identical to the simulator's files) and diagnosed blind; only :func:`score` reads the truth.
     Writes ``out_dir/proof.csv``, ``proof.json``, figures. ``power_scales``: factors applied to each single
@@ -228,8 +229,8 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
     """
     out_dir = Path(out_dir)
     names = list(effects) if effects else list(PROOF_SESSIONS)
-    seeds = list(range(seed, seed + n_seeds))
-    jobs = [(nm, seeds, str(out_dir), settings, 1.0, None, base) for nm in names]
+    noise_seeds = [seeds.child_seed(seed, "noise", k) for k in range(n_seeds)]
+    jobs = [(nm, noise_seeds, str(out_dir), settings, 1.0, None, base) for nm in names]
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     t0 = time.perf_counter()
@@ -263,7 +264,7 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
             scales = power_scales if not isinstance(power_scales, str) else _power_scales(r)
             r["power_scales"] = list(scales)
             for sc in scales:
-                pjobs.append((r["name"], list(range(seed + 50000, seed + 50000 + power_seeds)), None, settings,
+                pjobs.append((r["name"], [seeds.child_seed(seed, "power", k) for k in range(power_seeds)], None, settings,
                               float(sc), _scale_effects(eff, sc), base))
         presults = run(pjobs)
         power = _power_table(results + presults, names)

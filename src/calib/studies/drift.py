@@ -25,6 +25,7 @@ from calib.nav import errormodel
 from calib.sim import simulator as simulate
 from calib.signal import allan
 from calib.core.rotations import dcm_to_euler
+from calib.core import seeds
 
 AXES = ["x", "y", "z"]
 #: He 2019 Table 1 (PSOBE, 50 tests) and its Ac values (§IV.A), for comparison
@@ -67,7 +68,7 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
     bar = Progress(n_tests, "PSOBE tests")
     t0 = time.perf_counter()
     for k in range(n_tests):
-        rng = np.random.default_rng(seed + k)
+        rng = seeds.stream(seed, "psobe_test", k)
         r = pso.minimize(cost, rng, settings)
         est[k], hist[k] = r.best, r.history
         pinned[k, r.pinned] = True
@@ -347,7 +348,7 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
                                                                  "height_m": site.get("height_m", 0.0)})
     for k in range(n_seeds):
         path = workdir / f"seed{k}.nc"
-        simulate.simulate_static_session(cfg, seed0 + k, path)
+        simulate.simulate_static_session(cfg, seeds.child_seed(seed0, "session", k), path)
         win = drift.load_window(path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
         path.unlink()
         cost = drift.NavigationCost(win, dcfg["output_interval_s"], dcfg["weights"], dcfg["position_unit"])
@@ -363,7 +364,7 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
     ds = xr.Dataset({"estimate": (("estimator", "seed", "axis"), np.array([est[m] for m in names]), {"units": "deg h-1"}),
                      "z": (("estimator", "seed", "axis"), z, {"long_name": "(estimate - truth) / Cramer-Rao bound"}),
                      "crb": (("axis",), crb, {"units": "deg h-1"}), "truth": (("axis",), truth, {"units": "deg h-1"})},
-                    coords={"estimator": names, "seed": np.arange(seed0, seed0 + n_seeds), "axis": AXES},
+                    coords={"estimator": names, "seed": np.array([seeds.child_seed(seed0, "session", k) for k in range(n_seeds)], dtype=np.int64), "axis": AXES},
                     attrs={"initial_condition": cond, "window_h": dcfg["window_h"]})
     write_netcdf(ds, out_nc, prov)
     rows = ["estimator,axis,mean_z,std_z,within_2_bounds,n_seeds,band99_low,band99_high,consistent"]
@@ -436,7 +437,7 @@ def run_real_drift(recording_path, out_json, fig, metrics_path, rcfg: dict, seed
     settings = pso.PSOSettings.from_config(rcfg["pso"])
     ests, Js = [], []
     for k in range(int(rcfg.get("tests", 10))):
-        r = pso.minimize(cost, np.random.default_rng(seed + k), settings)
+        r = pso.minimize(cost, seeds.stream(seed, "psobe_test", k), settings)
         ests.append(r.best)
         Js.append(r.best_cost)
         if r.pinned:

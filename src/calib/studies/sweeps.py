@@ -19,11 +19,11 @@ Kinds and what one point computes:
 
 * ``calibration`` (Liu 2021): ``runs`` identifications of one problem (``accel``: L_a of eq. 7 in the
   paper's 12-parameter form; ``gyro_static``: L_g of eq. 7; ``gyro_dynamic``: L_gm of eq. 26, then the biases)
-  with one optimiser (population NP, EG generations; optimiser run r uses seed ``seeds.calibration + r``);
+  with one optimiser (population NP, EG generations; optimiser run r draws from the stream ``("run", r)`` of ``seeds.calibration``);
   L* = the best of 10 multi-start least-squares fits and of the runs; success: L <= (1 + tol) L*
   (``calibration.success_rel_tol``, the rule of Table 5). Error of the identified (K E)(K E)^T (what the
   norm determines) and of the biases against the simulated truth.
-* ``drift_pso`` (He 2019): ``tests`` PSOBE runs (test k uses seed ``seeds.drift + k``) on the first
+* ``drift_pso`` (He 2019): ``tests`` PSOBE runs (test k draws from the stream ``("psobe_test", k)`` of ``seeds.drift``) on the first
   ``window_h`` hours; the Cramer-Rao bound of the drift for that window and noise; the minimiser of J (eq. 18)
   over the PSO search box (a linear programme on the linearised navigation errors, :func:`argmin_J`), so the
   error of a PSO estimate splits into the optimiser's part (estimate - argmin J) and the estimator's
@@ -53,6 +53,7 @@ from calib.drift import pso
 from calib.studies.drift import attitude_rad, noise_psd
 from calib.core.earth import DEG_PER_H
 from calib.figures import style as figures
+from calib.core import seeds
 
 KINDS = ("calibration", "drift_pso")
 PROBLEMS = ("accel", "gyro_static", "gyro_dynamic")
@@ -108,7 +109,7 @@ class Parameter:
 PARAMETERS = {
     "calibration": [
         Parameter("noise_scale", True, _scale_cal_noise, "factor on the 4 noise sigmas of calibration_session.noise"),
-        Parameter("seed", True, _set("seeds", "data"), "noise realisation of the session (seeds.data)"),
+        Parameter("seed", True, _set("seeds", "data"), "noise realisation of the session (root seeds.data)"),
         Parameter("dwell_s", True, _set("calibration_session", "dwell_s"), "dwell per static position [s]"),
         Parameter("method", False, _set("sweep", "method"), "optimiser (calibration.methods names); default ide"),
         Parameter("problem", False, _set("sweep", "problem"), "accel | gyro_static | gyro_dynamic; default accel"),
@@ -118,7 +119,7 @@ PARAMETERS = {
     ],
     "drift_pso": [
         Parameter("noise_scale", True, _scale_nav_noise, "factor on navigation_session gyro (and accel) noise"),
-        Parameter("seed", True, _set("seeds", "data"), "noise realisation of the session (default seeds.data + 2)"),
+        Parameter("seed", True, _set("seeds", "data"), "noise realisation of the session (root seeds.data)"),
         Parameter("window_h", True, _window, "estimation window = simulated session length [h]"),
         Parameter("variant", False, _set("drift", "pso", "variant"), "paper | standard"),
         Parameter("particles", False, _set("drift", "pso", "particles"), "swarm size"),
@@ -238,15 +239,14 @@ class Sweep:
             raise SweepError(f"{self.path}: {session!r} is not a session of sweep {self.name!r}") from None
         cfg = self._config({**{k: v for k, v in self.fixed.items() if self._is_data(k)}, **vals})
         key = "calibration_session" if self.kind == "calibration" else "navigation_session"
-        return {"kind": self.kind, "session": cfg[key], "site": cfg["site"], "seed": cfg["seeds"]["data"]}
+        return {"kind": self.kind, "session": cfg[key], "site": cfg["site"],
+                "seed": stages.session_seed(cfg["seeds"]["data"], key)}
 
     def _is_data(self, name):
         return any(p.name == name and p.data for p in PARAMETERS[self.kind])
 
     def _config(self, vals: dict) -> dict:
         cfg = {k: copy.deepcopy(self.study[k]) for k in SECTIONS[self.kind] if k in self.study}
-        if self.kind == "drift_pso":  # the main study's navigation session uses seeds.data + 2
-            cfg["seeds"]["data"] = cfg["seeds"]["data"] + 2
         cfg["sweep"] = dict(SWEEP_DEFAULTS[self.kind])
         for p in PARAMETERS[self.kind]:
             if p.name in vals:
@@ -377,14 +377,14 @@ def calibration_point(recording_path, truth_path, cfg: dict, log=print):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # bound hits are counted below
         for r in range(R):
-            res = fn(method, np.random.default_rng(seed + r), (NP, EG), opts)
+            res = fn(method, seeds.stream(seed, "run", r), (NP, EG), opts)
             L[r], x[r] = res.L, res.paper_vector()
             on_bound[r] = bool(res.on_bound)
             h = getattr(res.optimizer, "history", None)
             if h is not None and len(h):
                 k = min(len(h), EG + 1)
                 hist[r, :k] = np.asarray(h)[:k]
-        lsq = [fn("lsq", np.random.default_rng(seed + 99_000 + r), (NP, EG), {}).L for r in range(10)]
+        lsq = [fn("lsq", seeds.stream(seed, "lsq_multistart", r), (NP, EG), {}).L for r in range(10)]
     L_star = float(min(min(lsq), L.min()))
     success = L <= L_star * (1.0 + tol)
     sensor = "accel" if problem == "accel" else "gyro"
@@ -439,7 +439,7 @@ def drift_point(recording_path, cfg: dict, log=print):
     hist = np.empty((T, G + 1))
     pinned = np.zeros((T, 3), np.int8)
     for k in range(T):
-        r = pso.minimize(cost, np.random.default_rng(seed + k), settings)
+        r = pso.minimize(cost, seeds.stream(seed, "psobe_test", k), settings)
         est[k], J[k], hist[k] = r.best, r.best_cost, r.history
         pinned[k, r.pinned] = 1
     eps_min, J_min = argmin_J(cost, settings.lower, settings.upper)
