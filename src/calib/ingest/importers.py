@@ -30,7 +30,8 @@ Common to all formats:
 ``latitude_deg`` (required), ``height_m`` (default 0), ``gravity_m_s2`` (optional local gravity, m s-2)
     Site; stored as global attributes. ``site_note``: free text on where the site values come from.
 ``sensor``, ``description``: free text stored as attributes.
-``data_dir``: directory the file names are relative to; a relative ``data_dir`` is taken relative to the
+``data_dir``: directory the file names are relative to (default: :func:`default_data_root`, i.e. ``$CALIB_DATA``
+or the shared data folder ``../shared/data`` beside the repository); a relative ``data_dir`` is taken relative to the
     settings file's directory (:func:`load_settings`) or, for a dict built in code, the working directory.
 ``accel``, ``gyro`` (required): triad declarations, keys
     ``units`` (required; one of :data:`calib.io.recording.UNITS` for the kind), ``sample_kind`` (required:
@@ -54,6 +55,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import re
 from pathlib import Path
 
@@ -134,8 +136,21 @@ def _check_keys(settings, fmt):
                             f"allowed: {', '.join(sorted(TRIAD_KEYS))}")
 
 
+def default_data_root() -> Path:
+    """Where recordings named by import settings without ``data_dir`` are looked for: the environment variable
+    ``CALIB_DATA`` if set, else the shared data folder beside the repository (``<repo>/../shared/data``)."""
+    env = os.environ.get("CALIB_DATA")
+    if env:
+        return Path(env).expanduser()
+    repo = Path(__file__).resolve().parents[3]
+    base = repo if (repo / "pyproject.toml").exists() else Path.cwd()
+    return (base / ".." / "shared" / "data").resolve()
+
+
 def _data_dir(settings) -> Path:
-    d = Path(settings.get("data_dir", "."))
+    if "data_dir" not in settings:
+        return default_data_root()
+    d = Path(settings["data_dir"])
     if not d.is_absolute():
         d = Path(settings.get("_base_dir", Path.cwd())) / d
     return d
