@@ -105,7 +105,7 @@ class Parameter:
 
 
 #: the sweep parameters of each kind, in path order (data parameters first). Keep in step with
-#: workflow/schemas/sweep.schema.yaml (tests/test_sweeps.py checks it).
+#: workflow/schemas/sweep.schema.yaml (tests/studies/test_sweeps.py checks it).
 PARAMETERS = {
     "calibration": [
         Parameter("noise_scale", True, _scale_cal_noise, "factor on the 4 noise sigmas of calibration_session.noise"),

@@ -16,7 +16,7 @@ from calib.ingest import importers
 from calib.io import recording
 from calib.ingest.importers import ImportDataError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data"
 CONFIG = ROOT / "config" / "import"
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data directory {DATA} is missing")

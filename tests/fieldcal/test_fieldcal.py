@@ -19,7 +19,7 @@ from calib.io import recording
 from calib.core import earth
 from calib.core import rotations as transforms
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data"
 CONFIG = ROOT / "config" / "import"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data directory {DATA} is missing")

@@ -17,7 +17,7 @@ import pytest
 import xarray as xr
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PROFILE = ROOT / "workflow" / "profiles" / "cluster-generic"
 pytestmark = pytest.mark.cluster
 

@@ -14,7 +14,7 @@ from calib.studies import stages
 from calib.studies import sweeps
 from calib.core.earth import DEG_PER_H
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SWEEP_SCHEMA = ROOT / "workflow" / "schemas" / "sweep.schema.yaml"
 STUDY_SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 

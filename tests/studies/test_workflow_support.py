@@ -15,7 +15,7 @@ from calib.nav import strapdown
 from calib.studies import tracking
 from calib.core.earth import DEG_PER_H
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _md5(p):

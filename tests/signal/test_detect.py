@@ -12,7 +12,7 @@ from calib.signal import detect
 from calib.ingest import importers
 from calib.io import recording
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data"
 CONFIG = ROOT / "config" / "import"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data directory {DATA} is missing")

@@ -549,7 +549,7 @@ def test_default_calibration_with_and_without_a_long_static_record(tmp_path):
     from calib.io import recording
     from calib.studies import stages
 
-    cfg = yaml.safe_load((Path(__file__).parents[1] / "config" / "config.yaml").read_text())
+    cfg = yaml.safe_load((Path(__file__).parents[2] / "config" / "config.yaml").read_text())
     s = dict(cfg["calibration_session"], dwell_s=20.0, rotation_rates_deg_s=[30.0], revolutions=1)
     stages.simulate_calibration(s, cfg["site"], 3, tmp_path / "s.nc", tmp_path / "s.json")
     stages.simulate_static_check(dict(cfg["static_check"], duration_h=0.3), s, cfg["site"], 4, tmp_path / "l.nc",
