@@ -343,45 +343,88 @@ def ga(objective, bounds, rng, budget=(60, 1200), *, tournament=2, p_crossover=0
                   on_bound=bound_hits(pop[i], lo, hi))
 
 
+@dataclass
+class Swarm:
+    """Outcome of :func:`particle_swarm`: global best, personal bests, per-iteration history and trajectory."""
+    gbest: np.ndarray
+    gcost: float
+    history: np.ndarray  # (G+1,) cost of the global best after each iteration (index 0: initial swarm)
+    pbest: np.ndarray
+    pcost: np.ndarray
+    nfev: int
+    trajectory: np.ndarray | None = None  # (G+1, P, D) positions, when asked for
+
+
+def particle_swarm(cost, lo, hi, rng, P: int, G: int, *, c1: float, c2: float, vlim, inertia=(0.9, 0.4),
+                   fixed_coefficients=None, init=None, init_velocity: str = "zero", zero_velocity_at_bound=False,
+                   gbest_update: str = "strict", keep_trajectory=False, progress=None) -> Swarm:
+    """The one particle-swarm loop of ``calib`` (Kennedy & Eberhart 1995; inertia weight of Shi & Eberhart 1998).
+
+    v <- w v + c1 r1 (pbest - x) + c2 r2 (gbest - x)  (He 2019 eq. 16),  x <- clip(x + v, lo, hi)  (eq. 17),
+    |v_j| <= ``vlim_j``. ``cost(X) -> (P,)`` is called once per iteration on the whole swarm (G + 1 calls).
+
+    ``inertia``: (w_start, w_end), w falling linearly over the G iterations, or one number (constant).
+    ``fixed_coefficients``: None draws r1, r2 ~ U(0, 1) per particle and dimension each iteration (one
+    ``rng.random((2, P, D))`` call); a pair (r1, r2) fixes them (the "paper" variant of He 2019, no draws).
+    ``init_velocity``: 'zero' or 'uniform' (U(-vlim, vlim), drawn after the positions).
+    ``zero_velocity_at_bound``: zero the velocity components whose position was clipped.
+    ``gbest_update``: 'strict' keeps the global best until a personal best is strictly lower; 'argmin' takes
+    the personal best of lowest cost each iteration (first one on ties).
+    """
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    D = lo.size
+    vlim = np.broadcast_to(np.asarray(vlim, dtype=float), (D,))
+    x = lo + rng.random((P, D)) * (hi - lo) if init is None else np.array(init, dtype=float)
+    v = np.zeros((P, D)) if init_velocity == "zero" else (2.0 * rng.random((P, D)) - 1.0) * vlim
+    c = cost(x)
+    pbest, pcost = x.copy(), c.copy()
+    g = int(np.argmin(pcost))
+    gbest, gcost = pbest[g].copy(), float(pcost[g])
+    hist = np.empty(G + 1)
+    hist[0] = gcost
+    traj = [x.copy()] if keep_trajectory else None
+    w_start, w_end = (inertia, inertia) if np.isscalar(inertia) else inertia
+    for m in range(G):
+        w = w_start + (w_end - w_start) * m / max(G - 1, 1)
+        if fixed_coefficients is None:
+            r1, r2 = rng.random((2, P, D))
+        else:
+            r1, r2 = fixed_coefficients
+        v = w * v + c1 * r1 * (pbest - x) + c2 * r2 * (gbest - x)
+        v = np.clip(v, -vlim, vlim)
+        x = x + v
+        if zero_velocity_at_bound:
+            v[(x < lo) | (x > hi)] = 0.0
+        x = np.clip(x, lo, hi)
+        c = cost(x)
+        better = c < pcost
+        pbest[better], pcost[better] = x[better], c[better]
+        g = int(np.argmin(pcost))
+        if gbest_update == "argmin" or pcost[g] < gcost:
+            gbest, gcost = pbest[g].copy(), float(pcost[g])
+        hist[m + 1] = gcost
+        if keep_trajectory:
+            traj.append(x.copy())
+        if progress is not None:
+            progress(m + 1)
+    return Swarm(gbest, gcost, hist, pbest, pcost, P * (G + 1), np.array(traj) if keep_trajectory else None)
+
+
 def pso(objective, bounds, rng, budget=(60, 1200), *, w_start=0.9, w_end=0.4, c1=2.0, c2=2.0, v_max=0.2,
         init=None) -> Result:
-    """Global-best PSO (Shi & Eberhart 1998): v <- w v + c1 r1 (pbest - x) + c2 r2 (gbest - x), r1, r2 ~ U(0,1)
-    per particle and dimension, inertia w falling linearly from ``w_start`` to ``w_end``, |v_j| clamped to
-    ``v_max`` x (range of dimension j), positions clipped to the bounds (the velocity component that hit a
-    bound is zeroed). Initial velocities U(-v_max, v_max) x range. Evaluations: NP per iteration."""
+    """Global-best PSO (Shi & Eberhart 1998) through :func:`particle_swarm`: r1, r2 ~ U(0,1) per particle and
+    dimension, inertia w falling linearly from ``w_start`` to ``w_end``, |v_j| clamped to ``v_max`` x (range
+    of dimension j), positions clipped to the bounds (the velocity component that hit a bound is zeroed).
+    Initial velocities U(-v_max, v_max) x range. Evaluations: NP per iteration."""
     t0 = time.perf_counter()
     lo, hi = parse_bounds(bounds)
     NP, EG = _budget(budget)
-    D = lo.size
-    rngw = hi - lo
-    vlim = v_max * rngw
-    x = lo + rng.random((NP, D)) * rngw if init is None else np.array(init, dtype=float)
-    v = (2.0 * rng.random((NP, D)) - 1.0) * vlim
-    f = _evaluate(objective, x)
-    nfev = NP
-    pb, pf = x.copy(), f.copy()
-    g = int(np.argmin(pf))
-    hist = np.empty(EG + 1)
-    hist[0] = pf[g]
-    for t in range(EG):
-        w = w_start + (w_end - w_start) * t / max(EG - 1, 1)
-        r = rng.random((2, NP, D))
-        v = w * v + c1 * r[0] * (pb - x) + c2 * r[1] * (pb[g] - x)
-        v = np.clip(v, -vlim, vlim)
-        x = x + v
-        out = (x < lo) | (x > hi)
-        x = np.clip(x, lo, hi)
-        v[out] = 0.0
-        f = _evaluate(objective, x)
-        nfev += NP
-        imp = f < pf
-        pb[imp] = x[imp]
-        pf[imp] = f[imp]
-        g = int(np.argmin(pf))
-        hist[t + 1] = pf[g]
-    return Result(x=pb[g].copy(), fun=float(pf[g]), history=hist, nfev=nfev, method="pso", nit=EG,
-                  time_s=time.perf_counter() - t0, population=pb, population_fun=pf,
-                  on_bound=bound_hits(pb[g], lo, hi))
+    sw = particle_swarm(lambda X: _evaluate(objective, X), lo, hi, rng, NP, EG, c1=c1, c2=c2,
+                        vlim=v_max * (hi - lo), inertia=(w_start, w_end), init=init, init_velocity="uniform",
+                        zero_velocity_at_bound=True, gbest_update="argmin")
+    return Result(x=sw.gbest.copy(), fun=sw.gcost, history=sw.history, nfev=sw.nfev, method="pso", nit=EG,
+                  time_s=time.perf_counter() - t0, population=sw.pbest, population_fun=sw.pcost,
+                  on_bound=bound_hits(sw.gbest, lo, hi))
 
 
 # ---------------------------------------------------------------------------------------------------------

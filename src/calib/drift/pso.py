@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.calibration.optimizers import particle_swarm
+
 
 @dataclass
 class PSOSettings:
@@ -65,38 +67,16 @@ def minimize(cost, rng: np.random.Generator, settings: PSOSettings, dim: int = 3
     one compiled pass). Returns the global best and the per-generation history.
     """
     s = settings
-    P, G = s.particles, s.generations
     lo, hi = np.full(dim, s.lower), np.full(dim, s.upper)
-    x = lo + rng.random((P, dim)) * (hi - lo)
-    v = np.zeros((P, dim))
-    c = np.asarray(cost(x), dtype=float)
-    pbest, pcost = x.copy(), c.copy()
-    g = int(np.argmin(pcost))
-    gbest, gcost = pbest[g].copy(), float(pcost[g])
-    hist = [gcost]
-    traj = [x.copy()]
-    for m in range(G):
-        if s.variant == "paper":
-            w, r1, r2 = s.inertia, s.r1, s.r2
-        else:
-            w = s.w_start + (s.w_end - s.w_start) * m / max(G - 1, 1)
-            r1, r2 = rng.random((P, dim)), rng.random((P, dim))
-        v = w * v + s.c1 * r1 * (pbest - x) + s.c2 * r2 * (gbest - x)  # eq. 16
-        np.clip(v, -s.v_max, s.v_max, out=v)  # velocity limit of He 2019 §III.A
-        x = np.clip(x + v, lo, hi)  # eq. 17, kept in the search range
-        c = np.asarray(cost(x), dtype=float)
-        better = c < pcost
-        pbest[better], pcost[better] = x[better], c[better]
-        g = int(np.argmin(pcost))
-        if pcost[g] < gcost:
-            gbest, gcost = pbest[g].copy(), float(pcost[g])
-        hist.append(gcost)
-        traj.append(x.copy())
-        if progress is not None:
-            progress(m + 1)
+    paper = s.variant == "paper"
+    sw = particle_swarm(lambda X: np.asarray(cost(X), dtype=float), lo, hi, rng, s.particles, s.generations,
+                        c1=s.c1, c2=s.c2, vlim=s.v_max,  # velocity limit of He 2019 §III.A
+                        inertia=s.inertia if paper else (s.w_start, s.w_end),
+                        fixed_coefficients=(s.r1, s.r2) if paper else None, init_velocity="zero",
+                        gbest_update="strict", keep_trajectory=True, progress=progress)
     span = hi - lo
-    pinned = [d for d in range(dim) if min(gbest[d] - lo[d], hi[d] - gbest[d]) <= 1e-9 * span[d]]
-    return PSOResult(gbest, gcost, np.array(hist), np.array(traj), P * (G + 1), pinned)
+    pinned = [d for d in range(dim) if min(sw.gbest[d] - lo[d], hi[d] - sw.gbest[d]) <= 1e-9 * span[d]]
+    return PSOResult(sw.gbest, sw.gcost, sw.history, sw.trajectory, sw.nfev, pinned)
 
 
 def accuracy(estimate, reference):
