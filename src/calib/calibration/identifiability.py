@@ -94,6 +94,17 @@ def _describe(v_scaled, scale, names, tol=0.05):
     return "delta " + " ".join(parts)
 
 
+def singular_spectrum(Js):
+    """The one identifiability SVD: singular values (p,) of a column-scaled Jacobian ``Js`` (n, p), padded with
+    zeros when n < p (directions the observations cannot see at all), and the right singular vectors Vt (p, p).
+    The rank of the data is the number of singular values above a relative tolerance of the largest."""
+    Js = np.asarray(Js, dtype=float)
+    _, S, Vt = np.linalg.svd(Js, full_matrices=True)
+    Sfull = np.zeros(Js.shape[1])
+    Sfull[: len(S)] = S
+    return Sfull, Vt
+
+
 def analyze_jacobian(J, names, scale=None, *, rtol: float = 1e-8, tol_param: float = 1e-2, generators=None,
                      label: str = "") -> IdentifiabilityReport:
     """Rank / null space of residual Jacobian ``J`` (n, p) with column scale ``scale`` (p,).
@@ -104,10 +115,7 @@ def analyze_jacobian(J, names, scale=None, *, rtol: float = 1e-8, tol_param: flo
     J = np.asarray(J, dtype=float)
     p = J.shape[1]
     s = np.ones(p) if scale is None else np.asarray(scale, dtype=float)
-    Js = J * s[None, :]
-    _, S, Vt = np.linalg.svd(Js, full_matrices=True)
-    Sfull = np.zeros(p)
-    Sfull[: len(S)] = S
+    Sfull, Vt = singular_spectrum(J * s[None, :])
     smax = Sfull.max() if Sfull.size else 0.0
     rank = int(np.sum(Sfull > rtol * smax)) if smax > 0 else 0
     Vn = Vt[rank:].T  # (p, k) scaled coordinates

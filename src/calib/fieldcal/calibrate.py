@@ -69,6 +69,7 @@ import xarray as xr
 from scipy.optimize import least_squares
 
 from calib.calibration.ellipsoid import fit_ellipsoid
+from calib.calibration.identifiability import singular_spectrum
 from calib.signal import detect
 from calib.core import earth
 from calib.io import recording
@@ -138,9 +139,7 @@ def identifiability(jac, names, rtol: float = 1e-6, based_on: str = "") -> Ident
     jac = np.asarray(jac, dtype=float)
     norms = np.linalg.norm(jac, axis=0)
     scaled = jac / np.where(norms > 0, norms, 1.0)
-    _, s, vt = np.linalg.svd(scaled, full_matrices=True)
-    s_full = np.zeros(len(names))
-    s_full[:len(s)] = s
+    s_full, vt = singular_spectrum(scaled)
     rel = s_full / s_full[0] if s_full[0] > 0 else s_full
     rank = int(np.sum(rel > rtol))
     weakest = vt[-1] * (1.0 if vt[-1][np.argmax(np.abs(vt[-1]))] > 0 else -1.0)
