@@ -121,6 +121,12 @@ def test_norm_fit_recovers_known_parameters():
     assert np.mean(np.linalg.norm(a, axis=1)) == pytest.approx(G, abs=0.005)
     # body frame of the accel triad: calibration matrix upper triangular
     assert np.allclose(np.tril(fit.matrix, -1), 0.0)
+    # the same calibration as the one triad model of calib.core.triad: N = K E x + b inverts apply()
+    m = fit.model()
+    raw = acc[spans[5, 0]:spans[5, 1]]
+    np.testing.assert_allclose(m.inverse(fit.convert_input(raw)), a, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(m.forward(a), fit.convert_input(raw), rtol=1e-12)
+    assert m.input_unit == "m s-2"
 
 
 def test_norm_fit_fixes_the_sign_gauge():

@@ -66,6 +66,15 @@ class TriadModel:
         return np.concatenate([self.K, [self.E[i, j] for i, j in OFFDIAG], self.b])
 
     @classmethod
+    def from_KE(cls, KE, b, input_unit="g", output_unit="count s-1", extra=None) -> "TriadModel":
+        """The model of a full matrix K E (non-zero diagonal): K = diag(K E), E = diag(K)^-1 K E."""
+        KE = np.asarray(KE, dtype=float)
+        K = np.diag(KE).copy()
+        if np.any(K == 0):
+            raise ValueError("K E has a zero on its diagonal: not a triad model (a sensor axis sees nothing)")
+        return cls(K, KE / K[:, None], np.asarray(b, dtype=float).copy(), input_unit, output_unit, dict(extra or {}))
+
+    @classmethod
     def from_vector(cls, theta, input_unit="g", output_unit="count s-1") -> "TriadModel":
         theta = np.asarray(theta, dtype=float)
         E = np.eye(3)

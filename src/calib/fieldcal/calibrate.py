@@ -69,6 +69,7 @@ import xarray as xr
 from scipy.optimize import least_squares
 
 from calib.calibration.ellipsoid import fit_ellipsoid
+from calib.core.triad import TriadModel
 from calib.calibration.identifiability import singular_spectrum
 from calib.signal import detect
 from calib.core import earth
@@ -189,6 +190,13 @@ class TriadFit:
 
     def param(self, name: str) -> float:
         return float(self.values[self.names.index(name)])
+
+    def model(self) -> TriadModel:
+        """This calibration as the triad model N = K E x + b of :mod:`calib.core.triad` (the one representation
+        of a triad's parameters): x in ``output_units``, N in the converted input units; K E = matrix^-1."""
+        conv = _input_label(self.sensor, self.input_units, self.input_kind)
+        return TriadModel.from_KE(np.linalg.inv(self.matrix), self.bias, input_unit=self.output_units,
+                                  output_unit=conv)
 
     def convert_input(self, raw) -> np.ndarray:
         """Raw samples (recording units) to the calibration's input units (counts, or SI rates)."""
