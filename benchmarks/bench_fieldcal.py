@@ -1,4 +1,4 @@
-"""Benchmark of calib.fieldcal.calibrate on the shared real recordings: per-log times and the acceptance
+"""Benchmark of calib.fieldcal on the shared real recordings: per-log times and the acceptance
 metrics next to their targets (the peers' published numbers).
 
 Run: .venv/bin/python benchmarks/bench_fieldcal.py [--data ../shared/data]
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.fieldcal import calibrate as fieldcal
+from calib import fieldcal
 from calib.ingest import importers
 
 ROOT = Path(__file__).resolve().parents[1]

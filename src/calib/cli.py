@@ -84,7 +84,7 @@ def cmd_calibrate(a):
 
 
 def cmd_fieldcal(a):
-    from calib.fieldcal import calibrate as fieldcal
+    from calib import fieldcal
     from calib.io.netcdf import write_netcdf
 
     settings = None

@@ -12,7 +12,7 @@ import pytest
 import xarray as xr
 
 from calib.signal import detect
-from calib.fieldcal import calibrate as fieldcal
+from calib import fieldcal
 from calib.ingest import importers
 from calib.io import netcdf as ncio
 from calib.io import recording
@@ -27,7 +27,7 @@ needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared real-data dir
 G = 9.81
 FS = 100.0
 
-# true parameters of the synthetic unit (counts), in the models of calib.fieldcal.calibrate
+# true parameters of the synthetic unit (counts), in the models of calib.fieldcal
 ACC_TRUE = np.array([0.004, -0.009, 0.021, 1 / 414.0, 1 / 412.0, 1 / 415.0, 33124.0, 33275.0, 32364.0])
 GYR_MIS_TRUE = np.array([-0.006, 0.001, 0.05, 0.008, -0.025, -0.002])
 GYR_GAIN_TRUE = np.array([1 / 4780.0, 1 / 4760.0, 1 / 4770.0])
@@ -90,12 +90,12 @@ def test_accel_jacobian_matches_finite_differences():
     rng = np.random.default_rng(1)
     N = ACC_TRUE[6:9] + rng.normal(scale=4000.0, size=(50, 3))
     p = ACC_TRUE + rng.normal(scale=1e-3, size=9) * np.r_[1, 1, 1, 1e-3, 1e-3, 1e-3, 1e3, 1e3, 1e3]
-    J = fieldcal._accel_jacobian(p, N, G)
+    J = fieldcal.accel_jacobian(p, N, G)
     for j in range(9):
         h = 1e-6 * max(abs(p[j]), 1e-3)
         e = np.zeros(9)
         e[j] = h
-        fd = (fieldcal._accel_residual(p + e, N, G) - fieldcal._accel_residual(p - e, N, G)) / (2 * h)
+        fd = (fieldcal.accel_residual(p + e, N, G) - fieldcal.accel_residual(p - e, N, G)) / (2 * h)
         np.testing.assert_allclose(J[:, j], fd, rtol=1e-5, atol=1e-7 * np.abs(fd).max())
 
 
@@ -166,7 +166,7 @@ def test_identifiability_reports_unvisited_axis():
     for ang in np.linspace(0, 2 * math.pi, 13)[:-1]:
         f = transforms.rot_y(ang).T @ up
         means.append(np.linalg.solve(_acc_true_matrix(), f) + ACC_TRUE[6:9])
-    ident = fieldcal.identifiability(fieldcal._accel_jacobian(ACC_TRUE, np.array(means), G),
+    ident = fieldcal.identifiability(fieldcal.accel_jacobian(ACC_TRUE, np.array(means), G),
                                      fieldcal.ACCEL_NAMES)
     assert ident.rank < 9
     weak = sorted(ident.weakest, key=lambda k: -abs(ident.weakest[k]))[:3]

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.fieldcal import calibrate as fieldcal
+from calib import fieldcal
 from calib.figures import style as figures
 from calib.io import recording
 from calib.io.netcdf import write_netcdf

@@ -1,0 +1,297 @@
+"""Result objects of the field calibration: one triad's fit (:class:`TriadFit`), the session's result
+(:class:`FieldCalResult`), the identifiability report, the settings keys and names."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import xarray as xr
+
+from calib.core.triad import TriadModel
+from calib.calibration.identifiability import singular_spectrum
+
+
+ACCEL_NAMES = ("mis_yz", "mis_zy", "mis_zx", "gain_x", "gain_y", "gain_z", "bias_x", "bias_y", "bias_z")
+GYRO_NAMES = ("mis_yz", "mis_zy", "mis_zx", "mis_xz", "mis_xy", "mis_yx", "gain_x", "gain_y", "gain_z")
+BIAS_NAMES = ("bias_x", "bias_y", "bias_z")
+FERRARIS_M_NAMES = tuple(f"M_{r}{c}" for r in "xyz" for c in "xyz")
+
+#: the norm model has 9 parameters: at least 9 static orientations are needed, 12 recommended (IMU-TK's minimum)
+MIN_INTERVALS = 9
+RECOMMENDED_INTERVALS = 12
+
+#: IMU-TK's defaults for its test data (apps/test_imu_calib.cpp and calibration.cpp)
+IMU_TK_DEFAULTS = {"k": list(range(2, 11)), "init_samples": 5000, "window": 101, "samples_per_interval": 100,
+                   "min_intervals": 12}
+
+SETTINGS_KEYS = {"method", "gravity_m_s2", "detection", "samples_per_interval", "min_intervals",
+                 "recommended_intervals", "gyro", "evaluate", "rank_rtol"}
+DETECTION_KEYS_DETECT = {"rule", "window_s", "min_interval_s", "threshold", "k", "init_s", "gyro_threshold",
+                         "use_gyro", "onset_factor", "floor_percentile"}
+DETECTION_KEYS_IMU_TK = {"rule", "k", "init_samples", "window", "samples_per_interval", "min_intervals"}
+GYRO_KEYS = {"enabled", "bias", "dt", "scale_guess"}
+GYRO_BIAS_MODES = ("g_sensitive", "initial", "statics", "estimate")
+EVALUATIONS = ("mikoff_standstill", "directions")
+
+
+class FieldCalError(ValueError):
+    """Field calibration cannot proceed; the message names the input, the problem and the fix."""
+
+
+# =========================================================================== result objects
+
+
+@dataclass
+class Identifiability:
+    """SVD of a column-scaled Jacobian: how many parameter combinations the data determine.
+
+    ``singular_values`` are relative to the largest (descending). ``weakest`` maps each parameter name to its
+    component in the right singular vector of the smallest singular value.
+    """
+
+    n_params: int
+    rank: int
+    singular_values: np.ndarray
+    condition: float
+    weakest: dict
+    rtol: float
+    based_on: str
+
+    def as_dict(self) -> dict:
+        top = sorted(self.weakest.items(), key=lambda kv: -abs(kv[1]))
+        return {"n_params": self.n_params, "rank": self.rank, "condition": self.condition, "rtol": self.rtol,
+                "singular_values_rel": [float(s) for s in self.singular_values],
+                "weakest_direction": {k: round(float(v), 4) for k, v in top if abs(v) >= 0.05},
+                "based_on": self.based_on}
+
+    def describe(self) -> str:
+        w = ", ".join(f"{v:+.2f} {k}" for k, v in sorted(self.weakest.items(), key=lambda kv: -abs(kv[1]))
+                      if abs(v) >= 0.2)
+        return (f"rank {self.rank} of {self.n_params} (rtol {self.rtol:g}; condition {self.condition:.3g}); "
+                f"weakest direction {w} (relative singular value {self.singular_values[-1]:.3g})")
+
+
+def identifiability(jac, names, rtol: float = 1e-6, based_on: str = "") -> Identifiability:
+    """Rank, condition and weakest direction of the column-scaled Jacobian ``jac`` (rows = observations)."""
+    jac = np.asarray(jac, dtype=float)
+    norms = np.linalg.norm(jac, axis=0)
+    scaled = jac / np.where(norms > 0, norms, 1.0)
+    s_full, vt = singular_spectrum(scaled)
+    rel = s_full / s_full[0] if s_full[0] > 0 else s_full
+    rank = int(np.sum(rel > rtol))
+    weakest = vt[-1] * (1.0 if vt[-1][np.argmax(np.abs(vt[-1]))] > 0 else -1.0)
+    cond = float(s_full[0] / s_full[-1]) if s_full[-1] > 0 else math.inf
+    return Identifiability(len(names), rank, rel, cond, dict(zip(names, weakest.tolist())), rtol, based_on)
+
+
+@dataclass
+class TriadFit:
+    """Calibration of one triad: ``out = matrix @ (input_factor * raw [/ dt] - bias)``.
+
+    ``raw`` in the recording's units (``input_units``; divided by ``dt`` first when ``input_kind`` is
+    ``increment``). ``matrix`` (3x3) and ``bias`` (in the converted input units: counts, or SI) hold the
+    whole calibration; ``names``/``values``/``covariance`` are the fitted parameters (see module docstring;
+    ``param_units`` per parameter). ``scale_factors``: input unit per output unit (IMU-TK's inverse scale
+    factors). ``residual_rms`` in ``residual_units`` over ``n_residuals`` residuals.
+    """
+
+    sensor: str
+    method: str
+    names: tuple
+    values: np.ndarray
+    covariance: np.ndarray
+    param_units: tuple
+    matrix: np.ndarray
+    bias: np.ndarray
+    input_units: str
+    input_factor: float
+    input_kind: str
+    dt: float
+    output_units: str
+    scale_factors: np.ndarray
+    scale_factor_std: np.ndarray
+    scale_factor_units: str
+    residual_rms: float
+    residual_units: str
+    n_residuals: int
+    identifiability: Identifiability | None
+    notes: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+    g_sensitivity: np.ndarray | None = None
+
+    @property
+    def std(self) -> np.ndarray:
+        """Standard errors of ``values`` (NaN where unknown)."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    def param(self, name: str) -> float:
+        return float(self.values[self.names.index(name)])
+
+    def model(self) -> TriadModel:
+        """This calibration as the triad model N = K E x + b of :mod:`calib.core.triad` (the one representation
+        of a triad's parameters): x in ``output_units``, N in the converted input units; K E = matrix^-1."""
+        conv = input_label(self.sensor, self.input_units, self.input_kind)
+        return TriadModel.from_KE(np.linalg.inv(self.matrix), self.bias, input_unit=self.output_units,
+                                  output_unit=conv)
+
+    def convert_input(self, raw) -> np.ndarray:
+        """Raw samples (recording units) to the calibration's input units (counts, or SI rates)."""
+        x = np.asarray(raw, dtype=np.float64) * self.input_factor
+        return x / self.dt if self.input_kind == "increment" else x
+
+    def apply(self, raw, accel_calibrated=None) -> np.ndarray:
+        """Calibrated output (``output_units``, body frame) of raw (n, 3) samples in the recording's units.
+
+        A g-sensitive gyro (``g_sensitivity`` set) also needs the calibrated specific force [m s-2] of the
+        same samples: ``out = matrix @ (N - bias - G a)``.
+        """
+        x = self.convert_input(raw) - self.bias
+        if self.g_sensitivity is not None:
+            if accel_calibrated is None:
+                raise FieldCalError(f"{self.sensor} calibration is g-sensitive: pass accel_calibrated (m s-2)")
+            x = x - np.asarray(accel_calibrated, dtype=float) @ self.g_sensitivity.T
+        return x @ self.matrix.T
+
+
+@dataclass
+class FieldCalResult:
+    """Field calibration of one recording. See the module docstring for frames, models and units.
+
+    ``apply(accel_raw, gyro_raw)`` gives calibrated specific force [m s-2] and rate [rad s-1] in the body
+    frame stated by ``frame``. ``metrics``: the key numbers (also in :meth:`summary`).
+    """
+
+    method: str
+    accel: TriadFit
+    gyro: TriadFit | None
+    frame: str
+    gravity_m_s2: float
+    intervals: np.ndarray
+    detection_rule: str
+    source: str
+    sensor: str
+    metrics: dict
+    notes: list
+    settings: dict
+
+    def apply(self, accel_raw, gyro_raw=None):
+        a = self.accel.apply(accel_raw)
+        if gyro_raw is None:
+            return a
+        if self.gyro is None:
+            raise FieldCalError(f"{self.source}: no gyro calibration in this result (gyro.enabled was false)")
+        return a, self.gyro.apply(gyro_raw, a)
+
+    @property
+    def how_to_apply(self) -> str:
+        g = ""
+        if self.gyro is not None:
+            g = "; gyro [rad s-1] = gyro_matrix @ (gyro_input_factor * raw_gyro - gyro_bias" + \
+                (" - gyro_g_sensitivity @ accel)" if self.gyro.g_sensitivity is not None else ")")
+        return ("accel [m s-2] = accel_matrix @ (accel_input_factor * raw_accel - accel_bias)" + g +
+                " (raw in the recording's units, increments divided by the sample interval first; bias in "
+                "the converted input units: counts, or SI)")
+
+    def summary(self) -> dict:
+        """Key metrics as a JSON-ready dict."""
+        a = self.accel
+        out = {"method": self.method, "source": self.source, "sensor": self.sensor,
+               "gravity_m_s2": self.gravity_m_s2, "n_static_intervals": int(len(self.intervals)),
+               "detection_rule": self.detection_rule,
+               "accel_norm_rms_m_s2": a.residual_rms,
+               "accel_scale_factors": [float(v) for v in a.scale_factors],
+               "accel_scale_factor_std": [float(v) for v in a.scale_factor_std],
+               "accel_scale_factor_units": a.scale_factor_units,
+               "accel_identifiability": a.identifiability.as_dict() if a.identifiability else None}
+        if self.gyro is not None:
+            g = self.gyro
+            out.update({"gyro_residual_rms": g.residual_rms, "gyro_residual_units": g.residual_units,
+                        "gyro_scale_factors": [float(v) for v in g.scale_factors],
+                        "gyro_scale_factor_units": g.scale_factor_units,
+                        "gyro_identifiability": g.identifiability.as_dict() if g.identifiability else None})
+        out.update(self.metrics)
+        out["notes"] = list(self.notes) + [f"accel: {n}" for n in a.notes] + \
+            ([f"gyro: {n}" for n in self.gyro.notes] if self.gyro else [])
+        return out
+
+    def to_dataset(self) -> xr.Dataset:
+        """The calibration as an ``xarray.Dataset`` with labelled dims ``parameter`` (and ``parameter_b`` for
+        the covariance), ``axis_out``/``axis_in`` for the matrices, ``interval``/``bound`` for the static
+        intervals. Accel and gyro parameters are prefixed ``accel.``/``gyro.``; their cross-covariance is
+        not estimated (the gyro fit takes the accel calibration as fixed) and is stored as NaN.
+        """
+        fits = [f for f in (self.accel, self.gyro) if f is not None]
+        names = [f"{f.sensor}.{n}" for f in fits for n in f.names]
+        units = [u for f in fits for u in f.param_units]
+        vals = np.concatenate([f.values for f in fits])
+        p = len(names)
+        cov = np.full((p, p), np.nan)
+        i0 = 0
+        for f in fits:
+            k = len(f.names)
+            cov[i0:i0 + k, i0:i0 + k] = f.covariance
+            i0 += k
+        data = {
+            "value": (("parameter",), vals, {"long_name": "fitted parameter (see units)"}),
+            "standard_error": (("parameter",), np.sqrt(np.clip(np.diag(cov), 0, None)),
+                               {"long_name": "1-sigma standard error (NaN: not estimated)"}),
+            "units": (("parameter",), np.asarray(units, dtype=str)),
+            "covariance": (("parameter", "parameter_b"), cov,
+                           {"long_name": "parameter covariance; accel-gyro cross terms not estimated (NaN)"}),
+            "static_intervals": (("interval", "bound"), np.asarray(self.intervals, dtype=np.int64).reshape(-1, 2),
+                                 {"long_name": "static intervals [start, stop) in samples"}),
+        }
+        for f in fits:
+            s = f.sensor
+            data[f"{s}_matrix"] = (("axis_out", "axis_in"), f.matrix,
+                                   {"long_name": f"{s} calibration matrix", "units": f"{f.output_units} per input unit"})
+            data[f"{s}_bias"] = (("axis_in",), f.bias, {"long_name": f"{s} bias in the converted input units",
+                                                        "units": _converted_units(f)})
+            data[f"{s}_scale_factor"] = (("axis_in",), f.scale_factors,
+                                         {"units": f.scale_factor_units, "long_name": f"{s} scale factors "
+                                          "(input per output unit; IMU-TK's inverse scale factors)"})
+            data[f"{s}_scale_factor_std"] = (("axis_in",), f.scale_factor_std, {"units": f.scale_factor_units})
+            if f.g_sensitivity is not None:
+                data[f"{s}_g_sensitivity"] = (("axis_in", "accel_axis"), f.g_sensitivity,
+                                              {"units": f"{_converted_units(f)} per m s-2",
+                                               "long_name": "offset per unit calibrated specific force"})
+        coords = {"parameter": names, "parameter_b": names, "axis_out": list("xyz"), "axis_in": list("xyz"),
+                  "accel_axis": list("xyz"),
+                  "bound": ["start", "stop"]}
+        attrs = {"conventions": "calib-fieldcal-1", "method": self.method, "frame": self.frame,
+                 "how_to_apply": self.how_to_apply, "gravity_m_s2": self.gravity_m_s2, "source": self.source,
+                 "sensor": self.sensor, "detection_rule": self.detection_rule,
+                 "notes": " | ".join(self.summary()["notes"])}
+        for f in fits:
+            s = f.sensor
+            attrs.update({f"{s}_input_units": f.input_units, f"{s}_input_factor": f.input_factor,
+                          f"{s}_input_kind": f.input_kind, f"{s}_output_units": f.output_units,
+                          f"{s}_method": f.method, f"{s}_residual_rms": f.residual_rms,
+                          f"{s}_residual_units": f.residual_units, f"{s}_n_residuals": f.n_residuals})
+            if f.identifiability is not None:
+                idf = f.identifiability
+                attrs.update({f"{s}_rank": idf.rank, f"{s}_n_params": idf.n_params,
+                              f"{s}_condition": idf.condition, f"{s}_identifiability": idf.describe()})
+        for k, v in self.metrics.items():
+            if isinstance(v, (int, float, str, np.integer, np.floating)) and not isinstance(v, bool):
+                attrs[f"metric_{k}"] = v
+        return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def _converted_units(f: TriadFit) -> str:
+    if f.input_units == "count":
+        return "count" if f.input_kind == "rate" else "count s-1"
+    return "m s-2" if f.sensor == "accel" else "rad s-1"
+
+
+
+def scale_factor_units(sensor, units, in_label):
+    out = "m s-2" if sensor == "accel" else "rad s-1"
+    return f"{in_label} per {out}" if units == "count" else f"1 (input in {out} per {out})"
+
+
+def input_label(sensor, units, kind):
+    if units == "count":
+        return "count" if kind == "rate" else "count s-1"
+    return "m s-2" if sensor == "accel" else "rad s-1"

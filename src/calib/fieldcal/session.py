@@ -1,0 +1,272 @@
+"""Field calibration of a whole recording (:func:`fieldcal_recording`): settings, interval detection, the
+accelerometer and gyroscope fits in order, evaluations."""
+from __future__ import annotations
+
+import math
+import time as _time
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from calib.signal import detect
+from calib.core import earth
+from calib.io import recording
+from calib.fieldcal.accelerometer import fit_accel_norm, norm_residual_rms
+from calib.fieldcal.ferraris import LABEL_PATTERN, fit_ferraris
+from calib.fieldcal.gyroscope import direction_check, fit_gyro_directions, gyro_static_regression
+from calib.fieldcal.intervals import imu_tk_accel_search, mikoff_standstill
+from calib.fieldcal.results import DETECTION_KEYS_DETECT, DETECTION_KEYS_IMU_TK, EVALUATIONS, FieldCalError, FieldCalResult, GYRO_BIAS_MODES, GYRO_KEYS, IMU_TK_DEFAULTS, MIN_INTERVALS, RECOMMENDED_INTERVALS, SETTINGS_KEYS
+
+# =========================================================================== recording-level workflow
+
+
+def _units_of(ds, var):
+    units = ds[var].attrs.get("units")
+    kind = ds[var].attrs.get("sample_kind", "rate")
+    if units == "count":
+        return units, 1.0, kind
+    f = recording.unit_factor(units)
+    if f is None:
+        raise FieldCalError(f"{ds.attrs.get('_path', 'dataset')}: variable '{var}': units {units!r} unknown")
+    return units, f, kind
+
+
+def _check_settings(settings, src):
+    for key in settings:
+        if key.startswith("_"):
+            continue
+        if key not in SETTINGS_KEYS:
+            raise FieldCalError(f"{src}: fieldcal settings key '{key}' unknown -- fix: one of "
+                                f"{', '.join(sorted(SETTINGS_KEYS))}")
+    det = settings.get("detection") or {}
+    if not isinstance(det, dict):
+        raise FieldCalError(f"{src}: settings 'detection' must be a mapping")
+    rule = det.get("rule", "detect")
+    allowed = {"detect": DETECTION_KEYS_DETECT, "imu_tk": DETECTION_KEYS_IMU_TK}.get(rule)
+    if allowed is None:
+        raise FieldCalError(f"{src}: settings 'detection.rule' = {rule!r} -- fix: 'detect' or 'imu_tk'")
+    for key in det:
+        if key not in allowed:
+            raise FieldCalError(f"{src}: settings 'detection.{key}' unknown for rule {rule!r} -- fix: one of "
+                                f"{', '.join(sorted(allowed))}")
+    gy = settings.get("gyro") or {}
+    for key in gy:
+        if key not in GYRO_KEYS:
+            raise FieldCalError(f"{src}: settings 'gyro.{key}' unknown -- fix: one of {', '.join(sorted(GYRO_KEYS))}")
+    if gy.get("bias", "g_sensitive") not in GYRO_BIAS_MODES:
+        raise FieldCalError(f"{src}: settings 'gyro.bias' = {gy.get('bias')!r} -- fix: one of "
+                            f"{', '.join(GYRO_BIAS_MODES)}")
+    if gy.get("dt", "nominal") not in ("nominal", "timestamps"):
+        raise FieldCalError(f"{src}: settings 'gyro.dt' = {gy.get('dt')!r} -- fix: nominal or timestamps")
+    for ev in settings.get("evaluate") or []:
+        if ev not in EVALUATIONS:
+            raise FieldCalError(f"{src}: settings 'evaluate' entry {ev!r} -- fix: one of {', '.join(EVALUATIONS)}")
+    if settings.get("method", "auto") not in ("auto", "norm", "ferraris"):
+        raise FieldCalError(f"{src}: settings 'method' = {settings.get('method')!r} -- fix: auto, norm or ferraris")
+
+
+def _labelled(ds):
+    """imucal-labelled statics {label: idx} and turns [(axis, angle_rad, idx)] from the segment table."""
+    if "segment_label" not in ds or "segment_index" not in ds:
+        return {}, []
+    si = np.asarray(ds["segment_index"].values)
+    statics, turns = {}, []
+    for k, (lab, kind) in enumerate(zip(ds["segment_label"].values, ds["segment_kind"].values)):
+        lab, kind = str(lab), str(kind)
+        idx = np.flatnonzero(si == k)
+        if kind == "static" and LABEL_PATTERN.match(lab):
+            statics[lab] = idx
+        elif kind == "rotation" and "rotation_axis" in ds:
+            axis = np.asarray(ds["rotation_axis"].values[k], dtype=float)
+            ax = int(np.argmax(np.abs(axis)))
+            if "rotation_angle" in ds:
+                ang = float(ds["rotation_angle"].values[k])
+            else:
+                ang = float(ds["rotation_rate"].values[k]) * len(idx) / float(ds.attrs["sample_rate_hz"])
+            turns.append((ax, math.radians(ang * np.sign(axis[ax])), idx))
+    return statics, turns
+
+
+def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResult:
+    """Field-calibrate a ``calib-recording-1`` recording (path or in-memory dataset).
+
+    Settings (all optional; unknown keys are an error):
+
+    ``method``: ``auto`` (default: ``ferraris`` when the segment table holds the six imucal static labels
+    and the turns, else ``norm``), ``norm`` or ``ferraris``.
+    ``gravity_m_s2``: local gravity; default the recording's ``gravity_m_s2`` attribute, else WGS-84 normal
+    gravity at its latitude and height.
+    ``detection``: ``{rule: detect, ...}`` -- :func:`calib.signal.detect.detect_static` keyword arguments
+    (``window_s, min_interval_s, threshold, k, init_s, gyro_threshold, use_gyro, ...``), or
+    ``{rule: imu_tk, k: 10 or [2, ..., 10], init_samples: 5000, window: 101, samples_per_interval: 100,
+    min_intervals: 12}`` -- IMU-TK's selection (:func:`imu_tk_accel_search`; a list of ``k`` = its search
+    for the smallest cost).
+    ``samples_per_interval``: with rule ``detect``, fit on the first n samples of each interval (None: all).
+    ``min_intervals`` (9), ``recommended_intervals`` (12), ``rank_rtol`` (1e-6).
+    ``gyro``: ``{enabled: true, bias: g_sensitive | initial | statics | estimate, dt: nominal | timestamps,
+    scale_guess: input units per rad s-1}``. ``g_sensitive`` (default): offset ``b + G a`` with ``b`` and the
+    g-sensitivity ``G`` fitted to the static gyro means against the calibrated accel means
+    (:func:`gyro_static_regression`; falls back to ``statics`` when the orientations do not determine it);
+    ``initial`` = mean over the initial rest (IMU-TK: its first ``init_samples + 1`` samples);
+    ``estimate`` = that, refined in the direction fit; ``statics`` = mean over all static samples.
+    ``evaluate``: list of extra checks: ``mikoff_standstill`` (the norm RMS over the standstill samples
+    mikoff/imu-calib selects, :func:`mikoff_standstill`: ``static_norm_rms_mikoff_standstill``), ``directions``
+    (:func:`direction_check` on the detected statics of the calibrated signals: ``direction_check_rms_deg``;
+    continuous recordings only).
+    """
+    t_start = _time.perf_counter()
+    settings = dict(settings or {})
+    if isinstance(path_or_ds, xr.Dataset):
+        ds = path_or_ds
+        src = str(ds.attrs.get("_path", "<dataset>"))
+    else:
+        src = str(path_or_ds)
+        ds = recording.load(Path(path_or_ds))
+    _check_settings(settings, src)
+    fs = float(ds.attrs["sample_rate_hz"])
+    dt_nom = 1.0 / fs
+    g = settings.get("gravity_m_s2")
+    if g is None:
+        g = ds.attrs.get("gravity_m_s2")
+    if g is None:
+        g = float(earth.normal_gravity(math.radians(float(ds.attrs["latitude_deg"])),
+                                       float(ds.attrs.get("height_m", 0.0))))
+        g_src = "WGS-84 normal gravity at the recording's site"
+    else:
+        g_src = "settings" if settings.get("gravity_m_s2") is not None else "recording attribute gravity_m_s2"
+    g = float(g)
+    au, af, ak = _units_of(ds, "accel")
+    gu, gf, gk = _units_of(ds, "gyro")
+    acc_in = np.asarray(ds["accel"].values, dtype=np.float64) * af
+    gyr_in = np.asarray(ds["gyro"].values, dtype=np.float64) * gf
+    if ak == "increment":
+        acc_in = acc_in / dt_nom
+    if gk == "increment":
+        gyr_in = gyr_in / dt_nom
+    acc_units_in = "count" if au == "count" else "m s-2"
+    gyr_units_in = "count" if gu == "count" else "rad s-1"
+    method = settings.get("method", "auto")
+    statics, turns = _labelled(ds)
+    if method == "auto":
+        method = "ferraris" if len(statics) == 6 and len(turns) == 3 else "norm"
+    gset = settings.get("gyro") or {}
+    notes = [f"gravity {g:.6g} m s-2 from {g_src}"]
+    metrics = {}
+    sensor = str(ds.attrs.get("sensor", ""))
+
+    if method == "ferraris":
+        acc_fit, gyr_fit = fit_ferraris(acc_in, gyr_in, fs, statics, turns, g, accel_units=acc_units_in,
+                                        accel_factor=af, gyro_units=gyr_units_in, gyro_factor=gf,
+                                        input_kind=ak, dt=dt_nom, path=src)
+        iv = np.array([[idx[0], idx[-1] + 1] for lab, idx in sorted(statics.items(), key=lambda kv: kv[1][0])])
+        frame = ("frame of the labelled case axes: x, y, z are the directions held up in x_p, y_p, z_p (assumed "
+                 "orthogonal, as the Ferraris method does); gyro output in the same frame")
+        rule = "segment labels of the recording (imucal x_p ... z_a, x_rot ... z_rot)"
+        metrics["static_norm_rms_m_s2"] = acc_fit.residual_rms
+        metrics["static_position_mean_norm_rms_m_s2"] = float(np.sqrt(np.mean(
+            (np.linalg.norm(((np.array([acc_in[statics[lab]].mean(axis=0) for lab in statics]) - acc_fit.bias)
+                             @ acc_fit.matrix.T), axis=1) - g) ** 2)))
+        metrics["turn_angles_deg"] = {k: [float(x) for x in v] for k, v in gyr_fit.extra["turn_angles_deg"].items()}
+        if not gset.get("enabled", True):
+            gyr_fit = None
+    else:
+        det_cfg = dict(settings.get("detection") or {})
+        rule_name = det_cfg.pop("rule", "detect")
+        common = dict(input_units=acc_units_in, input_factor=af, input_kind=ak, dt=dt_nom,
+                      rank_rtol=float(settings.get("rank_rtol", 1e-6)))
+        if rule_name == "imu_tk":
+            cfg = {**IMU_TK_DEFAULTS, **det_cfg}
+            acc_fit, k_used, iv, table = imu_tk_accel_search(
+                acc_in, fs, g, k=cfg["k"], init_samples=int(cfg["init_samples"]), window=int(cfg["window"]),
+                samples_per_interval=int(cfg["samples_per_interval"]), min_intervals=int(cfg["min_intervals"]),
+                path=src, **common)
+            rule = (f"IMU-TK: accel variance magnitude in a {cfg['window']}-sample centred window < k x that of "
+                    f"samples [0, {cfg['init_samples']}]; k searched over {cfg['k']} for the smallest cost, "
+                    f"k = {k_used} chosen; first {cfg['samples_per_interval']} samples of each interval")
+            metrics["imu_tk_k"] = k_used
+            metrics["imu_tk_search"] = [[kk, n, c, r] for kk, n, c, r in table]
+            init_span = (0, int(cfg["init_samples"]) + 1)
+        else:
+            d = detect.detect_static(acc_in, gyr_in, fs, **det_cfg)
+            iv = d.intervals
+            n_per = settings.get("samples_per_interval")
+            acc_fit = fit_accel_norm(acc_in, iv, g, samples_per_interval=n_per,
+                                     min_intervals=int(settings.get("min_intervals", MIN_INTERVALS)),
+                                     recommended_intervals=int(settings.get("recommended_intervals",
+                                                                            RECOMMENDED_INTERVALS)),
+                                     detection=d, path=src, **common)
+            rule = d.rule + ("" if n_per is None else f"; first {n_per} samples of each interval")
+            init_span = d.init_span if d.init_span is not None else tuple(iv[0])
+        frame = ("accelerometer-triad frame (IMU-TK convention): body x = accel x axis, body y in the plane of the "
+                 "accel x and y axes, body z completing a right-handed orthogonal frame; gyro output in the same "
+                 "frame (its misalignment includes the gyro-to-accel alignment)")
+        metrics["static_norm_rms_m_s2"] = acc_fit.residual_rms
+        metrics["static_interval_mean_norm_rms_m_s2"] = acc_fit.extra["interval_norm_rms"]
+        metrics["n_fit_samples"] = acc_fit.n_residuals
+        gyr_fit = None
+        if gset.get("enabled", True):
+            acc_cal = acc_fit.apply(np.asarray(ds["accel"].values))
+            bias_mode = gset.get("bias", "g_sensitive")
+            gsens = off_cov = None
+            if bias_mode == "g_sensitive":
+                reg = gyro_static_regression(gyr_in, acc_cal, iv, float(settings.get("rank_rtol", 1e-6)))
+                if reg["rank"] < 4:
+                    bias_mode = "statics"
+                    notes.append("gyro bias: static orientations too few or coplanar for the g-sensitivity "
+                                 f"({reg['identifiability'].describe()}); constant bias over the statics used")
+                else:
+                    b0, gsens, off_cov = reg["bias"], reg["G"], reg["covariance"]
+                    metrics["gyro_static_offset_rms"] = [float(v) for v in reg["rms"]]
+                    metrics["gyro_static_offset_spread"] = [float(v) for v in reg["spread"]]
+            if bias_mode == "statics":
+                b0 = np.concatenate([gyr_in[a:b] for a, b in iv]).mean(axis=0)
+            elif bias_mode in ("initial", "estimate"):
+                b0 = gyr_in[init_span[0]:init_span[1]].mean(axis=0)
+            if gset.get("dt", "nominal") == "timestamps":
+                if "time" not in ds.coords:
+                    raise FieldCalError(f"{src}: gyro.dt = timestamps but the recording has no time coordinate")
+                t = np.asarray(ds["time"].values, dtype=float)
+                dts = np.concatenate([np.diff(t), [dt_nom]])
+            else:
+                dts = np.full(len(gyr_in), dt_nom)
+            gyr_fit = fit_gyro_directions(gyr_in, acc_cal, iv, dts, bias=b0, g_sensitivity=gsens,
+                                          offset_covariance=off_cov, estimate_bias=(bias_mode == "estimate"),
+                                          scale_guess=gset.get("scale_guess"), input_units=gyr_units_in,
+                                          input_factor=gf, input_kind=gk, sample_dt=dt_nom,
+                                          rank_rtol=float(settings.get("rank_rtol", 1e-6)), path=src)
+            gyr_fit.notes.append({
+                "g_sensitive": "offset b + G a: bias and g-sensitivity G from a least-squares fit of the static gyro "
+                               "means to the calibrated accel means (independent of the direction residuals)",
+                "initial": f"bias: mean of the initial rest, samples [{init_span[0]}, {init_span[1]}) (IMU-TK)",
+                "estimate": f"bias: estimated, starting from the initial-rest mean [{init_span[0]}, {init_span[1]})",
+                "statics": "bias: mean over all static samples"}[bias_mode])
+            gyr_fit.notes.append(f"integration step: {gset.get('dt', 'nominal')}")
+            metrics["gyro_direction_rms_deg"] = gyr_fit.residual_rms
+            metrics["gyro_direction_rms_before_deg"] = gyr_fit.extra["rms_before_deg"]
+            metrics["gyro_direction_max_deg"] = float(np.max(gyr_fit.extra["pair_angles_deg"]))
+    for ev in settings.get("evaluate") or []:
+        if ev == "mikoff_standstill":
+            if gyr_units_in == "rad s-1":
+                w_rad = gyr_in
+            elif gyr_fit is not None:
+                w_rad = gyr_fit.apply(ds["gyro"].values, acc_fit.apply(np.asarray(ds["accel"].values)))
+            else:
+                raise FieldCalError(f"{src}: evaluate mikoff_standstill needs the gyro in rad s-1 or calibrated")
+            mask = mikoff_standstill(w_rad)
+            metrics["static_norm_rms_mikoff_standstill"] = norm_residual_rms(
+                acc_fit.apply(np.asarray(ds["accel"].values)), g, mask=mask)
+            metrics["n_mikoff_standstill_samples"] = int(mask.sum())
+        elif ev == "directions":
+            if gyr_fit is None:
+                raise FieldCalError(f"{src}: evaluate 'directions' needs the gyro calibration (gyro.enabled)")
+            res_tmp = FieldCalResult(method, acc_fit, gyr_fit, "", g, np.zeros((0, 2)), "", src, sensor, {}, [], {})
+            ang, ivd = direction_check(res_tmp, ds["accel"].values, ds["gyro"].values, fs)
+            metrics["direction_check_rms_deg"] = float(np.sqrt(np.mean(ang ** 2)))
+            metrics["direction_check_max_deg"] = float(np.max(ang))
+            metrics["direction_check_n_gaps"] = int(len(ang))
+    metrics["runtime_s"] = _time.perf_counter() - t_start
+    return FieldCalResult(method=method, accel=acc_fit, gyro=gyr_fit, frame=frame, gravity_m_s2=g,
+                          intervals=np.asarray(iv, dtype=np.int64).reshape(-1, 2), detection_rule=rule, source=src,
+                          sensor=sensor, metrics=metrics, notes=notes,
+                          settings={k: v for k, v in settings.items() if not k.startswith("_")})
