@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calib.ingest import importers
+from calib.ingest import common, importers
 from calib.io import recording
 from calib.ingest.importers import ImportDataError
 
@@ -60,7 +60,7 @@ def test_every_shipped_config_points_at_the_shared_data():
                      "mikoff_imu2", "smac_adis16405"]
     for n in names:
         s = importers.load_settings(CONFIG / f"{n}.yaml")  # data_dir as shipped, relative to the YAML
-        assert importers._data_dir(s).resolve() == DATA.resolve()
+        assert common.data_dir(s).resolve() == DATA.resolve()
         assert s["format"] in importers.FORMATS and "latitude_deg" in s
 
 

@@ -1,0 +1,54 @@
+"""Import recordings made elsewhere into ``calib-recording-1`` (see :mod:`calib.io.recording`).
+
+One module per source format (``imu_tk``, ``imucal``, ``columns``, ``mikoff``, ``npz_columns``), each with
+``import_<format>(settings) -> xarray.Dataset``; shared settings, checks and assembly in ``common``;
+:func:`calib.ingest.importers.import_recording`
+dispatches on ``settings['format']`` and writes atomically with :func:`calib.io.recording.write` (a failed import
+never leaves a file under the output name). Settings are plain dicts, normally read from
+``config/import/*.yaml`` with :func:`load_settings`.
+
+Nothing is guessed: units, sample kind, sample rate, site latitude, axis signs and the sense of hand-made
+turns come from the settings (or the file, where it says so). What *can* be checked against the data is:
+
+* accel units: the median accel norm over the quietest quarter of the record must be within
+  ``units_check_tolerance`` (default 20 %) of local gravity in the declared units (1 g = 9.80665 m s-2);
+  for counts only when ``accel.approx_counts_per_g`` is given;
+* gyro units: peak rate below 5000 deg/s; and for labelled turns the integrated angle about the labelled
+  axis must have the declared sign and be within 25 % of the declared angle (counts: only with
+  ``gyro.approx_counts_per_deg_s``);
+* structure: every row complete (a short last row means a truncated file), no NaN/Inf, header names as
+  declared, time strictly increasing and consistent with a declared rate, the two IMU-TK files sharing
+  their timestamps row for row.
+
+Every failure raises :class:`ImportDataError` (a :class:`calib.io.recording.RecordingError`, hence a
+``ValueError``) naming the file, the field and the fix.
+
+Settings keys
+-------------
+Common to all formats:
+
+``format`` (required)
+    ``imu_tk`` | ``imucal`` | ``mikoff`` | ``npz_columns`` | ``columns``.
+``latitude_deg`` (required), ``height_m`` (default 0), ``gravity_m_s2`` (optional local gravity, m s-2)
+    Site; stored as global attributes. ``site_note``: free text on where the site values come from.
+``sensor``, ``description``: free text stored as attributes.
+``data_dir``: directory the file names are relative to (default: :func:`default_data_root`, i.e. ``$CALIB_DATA``
+or the shared data folder ``../shared/data`` beside the repository); a relative ``data_dir`` is taken relative to the
+    settings file's directory (:func:`load_settings`) or, for a dict built in code, the working directory.
+``accel``, ``gyro`` (required): triad declarations, keys
+    ``units`` (required; one of :data:`calib.io.recording.UNITS` for the kind), ``sample_kind`` (required:
+    ``rate`` | ``increment``), ``columns`` (format dependent), ``scale`` (number or 3 numbers, default 1),
+    ``sign`` (3 of +1/-1, default +1): stored value = sign * scale * raw, per body axis x, y, z (with
+    ``columns`` this also remaps axes, e.g. to make a left-handed frame right-handed -- declared, never
+    inferred); ``approx_counts_per_g`` (accel in counts: enables the gravity-norm check),
+    ``approx_zero_count`` (accel counts at zero input, for that check only, default 0),
+    ``approx_counts_per_deg_s`` (gyro in counts: enables the turn-angle check).
+``units_check_tolerance``: relative tolerance of the gravity-norm check (default 0.2).
+
+Per format (see each function for details): ``imu_tk``: ``files: {accel, gyro}``, ``sample_rate_hz``
+(optional nominal rate, checked against the timestamps). ``imucal``: ``file``, ``segments_file`` or
+``label_column``, ``sample_column``, ``sample_rate_hz``, ``rotation: {angle_deg, sign, rate_deg_s}``,
+``labels``. ``mikoff``: ``file``, ``sample_rate_hz``. ``npz_columns``: ``file``, ``sample_rate_hz``,
+``data_key``, ``columns_key``. ``columns``: ``file``, ``delimiter``, ``header``, ``comment``,
+``skip_rows``, ``time: {column, units}`` or ``sample_rate_hz``, ``temperature: {column}``.
+"""

@@ -1,0 +1,408 @@
+"""What every importer shares: the settings (keys, data folder, site, triads), reading text tables, the unit
+and structure checks, and the assembly of a ``calib-recording-1`` dataset. See :mod:`calib.ingest` for the
+settings keys of each format."""
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from calib.core import earth
+from calib.io import recording
+from calib.signal.detect import moving_variance_norm, window_samples
+from calib.io.recording import RecordingError
+
+FORMATS = ("imu_tk", "imucal", "mikoff", "npz_columns", "columns")
+
+COMMON_KEYS = {"format", "latitude_deg", "height_m", "gravity_m_s2", "site_note", "sensor", "description",
+               "data_dir", "accel", "gyro", "units_check_tolerance"}
+FORMAT_KEYS = {
+    "imu_tk": {"files", "sample_rate_hz"},
+    "imucal": {"file", "segments_file", "label_column", "sample_column", "sample_rate_hz", "rotation", "labels"},
+    "mikoff": {"file", "sample_rate_hz"},
+    "npz_columns": {"file", "sample_rate_hz", "data_key", "columns_key"},
+    "columns": {"file", "delimiter", "header", "comment", "skip_rows", "time", "sample_rate_hz", "temperature"},
+}
+TRIAD_KEYS = {"units", "sample_kind", "columns", "scale", "sign", "approx_counts_per_g", "approx_zero_count",
+              "approx_counts_per_deg_s"}
+ROTATION_KEYS = {"angle_deg", "sign", "rate_deg_s"}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+MAX_GYRO_DEG_S = 5000.0  # no MEMS or tactical gyro in this project's scope measures faster
+TURN_TOLERANCE = 0.25  # relative, on the integrated angle of a labelled turn
+
+
+class ImportDataError(RecordingError):
+    """An import that cannot proceed; names the file (or settings file), the field and the fix."""
+
+
+def settings_name(settings) -> str:
+    return settings.get("_source", "<import settings>")
+
+
+def serr(settings, key, problem, fix=""):
+    return ImportDataError(settings_name(settings), key, problem, fix)
+
+
+# --------------------------------------------------------------------------- settings
+
+
+def load_settings(path) -> dict:
+    """Read an import-settings YAML; relative ``data_dir`` is then resolved against the file's directory."""
+    import yaml
+
+    path = Path(path)
+    if not path.exists():
+        raise ImportDataError(path, "-", "import settings file not found")
+    with open(path) as fh:
+        s = yaml.safe_load(fh)
+    if not isinstance(s, dict):
+        raise ImportDataError(path, "-", "import settings must be a YAML mapping")
+    s["_source"] = str(path)
+    s["_base_dir"] = str(path.resolve().parent)
+    return s
+
+
+def check_keys(settings, fmt):
+    allowed = COMMON_KEYS | FORMAT_KEYS[fmt]
+    for key in settings:
+        if key.startswith("_"):
+            continue
+        if key not in allowed:
+            raise serr(settings, key, f"unknown key for format '{fmt}'",
+                        f"remove it or correct the spelling (allowed: {', '.join(sorted(allowed))})")
+    for tri in ("accel", "gyro"):
+        t = settings.get(tri)
+        if not isinstance(t, dict):
+            raise serr(settings, tri, "triad declaration missing or not a mapping",
+                        f"declare {tri}: {{units: ..., sample_kind: rate|increment}}")
+        for key in t:
+            if key not in TRIAD_KEYS:
+                raise serr(settings, f"{tri}.{key}", "unknown key",
+                            f"allowed: {', '.join(sorted(TRIAD_KEYS))}")
+
+
+def default_data_root() -> Path:
+    """Where recordings named by import settings without ``data_dir`` are looked for: the environment variable
+    ``CALIB_DATA`` if set, else the shared data folder beside the repository (``<repo>/../shared/data``)."""
+    env = os.environ.get("CALIB_DATA")
+    if env:
+        return Path(env).expanduser()
+    repo = Path(__file__).resolve().parents[3]
+    base = repo if (repo / "pyproject.toml").exists() else Path.cwd()
+    return (base / ".." / "shared" / "data").resolve()
+
+
+def data_dir(settings) -> Path:
+    if "data_dir" not in settings:
+        return default_data_root()
+    d = Path(settings["data_dir"])
+    if not d.is_absolute():
+        d = Path(settings.get("_base_dir", Path.cwd())) / d
+    return d
+
+
+def data_file(settings, key, value=None) -> Path:
+    name = settings.get(key) if value is None else value
+    if not name:
+        raise serr(settings, key, "file name missing", f"give '{key}' relative to data_dir or absolute")
+    p = Path(name)
+    if not p.is_absolute():
+        p = (data_dir(settings) / p).resolve()
+    if not p.exists():
+        raise ImportDataError(p, key, "input file not found",
+                              f"check '{key}' and data_dir (resolved to {data_dir(settings)})")
+    return p
+
+
+def number_setting(settings, key, value, positive=True):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise serr(settings, key, f"value {value!r} is not a number") from None
+    if not math.isfinite(v) or (positive and v <= 0):
+        raise serr(settings, key, f"value {v} must be a finite{' positive' if positive else ''} number")
+    return v
+
+
+def declared_rate(settings, required=True):
+    if "sample_rate_hz" not in settings:
+        if required:
+            raise serr(settings, "sample_rate_hz", "required: the file holds no timestamps",
+                        "declare the sample rate in Hz")
+        return None
+    return number_setting(settings, "sample_rate_hz", settings["sample_rate_hz"])
+
+
+def site_attrs(settings):
+    if "latitude_deg" not in settings:
+        raise serr(settings, "latitude_deg", "required (the recording holds no site)",
+                    "declare the site latitude in degrees (north positive)")
+    lat = number_setting(settings, "latitude_deg", settings["latitude_deg"], positive=False)
+    if not -90.0 <= lat <= 90.0:
+        raise serr(settings, "latitude_deg", f"value {lat} outside [-90, 90]")
+    h = number_setting(settings, "height_m", settings.get("height_m", 0.0), positive=False)
+    g = settings.get("gravity_m_s2")
+    if g is not None:
+        g = number_setting(settings, "gravity_m_s2", g)
+        if not 9.7 < g < 9.9:
+            raise serr(settings, "gravity_m_s2", f"value {g} m s-2 is not a local gravity on Earth",
+                        "give local gravity in m s-2 (about 9.78-9.83)")
+    return lat, h, g
+
+
+def triad_settings(settings, name):
+    t = settings[name]
+    kind = t.get("sample_kind")
+    if kind not in ("rate", "increment"):
+        raise serr(settings, f"{name}.sample_kind", f"value {kind!r}: declare 'rate' or 'increment'")
+    units = t.get("units")
+    allowed = recording.UNITS[(name, kind)]
+    if units not in allowed:
+        raise serr(settings, f"{name}.units", f"value {units!r} not allowed for sample_kind={kind!r}",
+                    f"declare one of: {', '.join(allowed)}")
+    scale = t.get("scale", 1.0)
+    scale = np.broadcast_to(np.asarray(scale, dtype=float), (3,)).copy() if np.ndim(scale) == 0 else \
+        np.asarray(scale, dtype=float)
+    if scale.shape != (3,) or not np.all(np.isfinite(scale)) or np.any(scale == 0):
+        raise serr(settings, f"{name}.scale", f"value {t.get('scale')!r}: one or three finite non-zero numbers")
+    sign = np.asarray(t.get("sign", [1, 1, 1]), dtype=float)
+    if sign.shape != (3,) or not np.all(np.isin(sign, (-1.0, 1.0))):
+        raise serr(settings, f"{name}.sign", f"value {t.get('sign')!r}: three of +1 / -1 (x, y, z)")
+    out = {"units": units, "kind": kind, "factor": sign * scale, "columns": t.get("columns")}
+    for key in ("approx_counts_per_g", "approx_counts_per_deg_s"):
+        if key in t:
+            out[key] = number_setting(settings, f"{name}.{key}", t[key])
+    out["approx_zero_count"] = number_setting(settings, f"{name}.approx_zero_count", t.get("approx_zero_count", 0.0),
+                                       positive=False)
+    return out
+
+
+def display_name(settings, path) -> str:
+    """Source file name as stored in attributes: relative to data_dir when inside it (machine independent)."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(data_dir(settings).resolve()))
+    except ValueError:
+        return str(p)
+
+
+def sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for blk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(blk)
+    return h.hexdigest()
+
+
+# --------------------------------------------------------------------------- text tables
+
+
+def split_fields(line, delimiter):
+    return line.split() if delimiter is None else [f.strip() for f in line.split(delimiter)]
+
+
+def read_table(path, *, delimiter=None, header=False, comment=None, skip_rows=0, n_fields=None,
+                field="row"):
+    """Read a delimited text table: returns (names or None, data lines, their 1-based line numbers).
+
+    Checks that every data row has the same number of fields as the header (or ``n_fields``, or the first
+    row); a short last row is reported as a truncated file.
+    """
+    try:
+        text = Path(path).read_text()
+    except UnicodeDecodeError:
+        raise ImportDataError(path, "-", "not a text file", "check the 'format' setting") from None
+    lines = text.splitlines()
+    keep, numbers = [], []
+    for i, line in enumerate(lines[skip_rows:], start=skip_rows + 1):
+        s = line.strip()
+        if not s or (comment and s.startswith(comment)):
+            continue
+        keep.append(s)
+        numbers.append(i)
+    names = None
+    if header:
+        if not keep:
+            raise ImportDataError(path, "header", "file is empty", "check the file")
+        names = [n.strip().strip('"').strip("'") for n in split_fields(keep[0], delimiter)]
+        keep, numbers = keep[1:], numbers[1:]
+        n_fields = n_fields or len(names)
+    if not keep:
+        raise ImportDataError(path, field, "no data rows", "check the file and skip_rows/comment settings")
+    counts = np.fromiter((len(split_fields(s, delimiter)) for s in keep), dtype=np.int64, count=len(keep))
+    expected = int(n_fields or counts[0])
+    bad = np.flatnonzero(counts != expected)
+    if bad.size:
+        i = int(bad[0])
+        if i == len(keep) - 1 and counts[i] < expected:
+            raise ImportDataError(path, field, f"last row (line {numbers[i]}) has {counts[i]} of {expected} fields: "
+                                  "file truncated", "re-export or re-copy the file (or delete the incomplete last "
+                                  "line if the loss is acceptable)")
+        raise ImportDataError(path, field, f"line {numbers[i]} has {counts[i]} fields, expected {expected}",
+                              "check the 'delimiter' setting and the file")
+    return names, keep, numbers
+
+
+def parse_numeric(path, lines, numbers, cols, names, delimiter):
+    """Parse the given column indices of the data lines as float64 (n, len(cols))."""
+    try:
+        return np.loadtxt(lines, delimiter=delimiter, usecols=cols, dtype=np.float64, ndmin=2)
+    except ValueError:
+        pass
+    for s, ln in zip(lines, numbers):
+        f = split_fields(s, delimiter)
+        for c in cols:
+            try:
+                float(f[c])
+            except ValueError:
+                name = names[c] if names else f"column {c}"
+                truncated = ln == numbers[-1]
+                raise ImportDataError(path, name, f"line {ln}: value {f[c]!r} is not a number"
+                                      + (" (last row: file truncated?)" if truncated else ""),
+                                      "re-export the file" + (" or delete the incomplete last line" if truncated
+                                                              else "")) from None
+    raise ImportDataError(path, "-", "could not parse the numeric columns", "check delimiter/header settings")
+
+
+def check_finite_columns(path, data, names, numbers=None):
+    bad = ~np.isfinite(data)
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        where = f"line {numbers[r]}" if numbers is not None else f"row {r}"
+        raise ImportDataError(path, names[c], f"NaN or Inf at {where} (sample {r})",
+                              "remove or interpolate the bad samples before import")
+
+
+def column_index(path, settings, key, ref, names):
+    """Column reference (name, or 0-based index) to index."""
+    if isinstance(ref, (int, np.integer)) and not isinstance(ref, bool):
+        n = len(names) if names else None
+        if ref < 0 or (n is not None and ref >= n):
+            raise serr(settings, key, f"column index {ref} out of range", "columns are numbered from 0")
+        return int(ref)
+    if names is None:
+        raise serr(settings, key, f"column {ref!r} given by name but the file has no header",
+                    "set header: true or give 0-based column indices")
+    if ref not in names:
+        raise ImportDataError(path, "header", f"column {ref!r} (settings '{key}') not in the header "
+                              f"{names}", "correct the column names in the settings (or the header row)")
+    return names.index(ref)
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def gravity_ref(lat, h, g):
+    return g if g is not None else float(earth.normal_gravity(math.radians(lat), h))
+
+
+def check_accel_units(path, settings, accel, tri, fs, g_ref):
+    """Median accel norm over the quietest quarter of the record vs local gravity in the declared units."""
+    tol = number_setting(settings, "units_check_tolerance", settings.get("units_check_tolerance", 0.2))
+    units, kind = tri["units"], tri["kind"]
+    dt = 1.0 / fs
+    if units == "count":
+        if "approx_counts_per_g" not in tri or kind != "rate":
+            return "skipped (counts without accel.approx_counts_per_g)"
+        per_unit = {"count": tri["approx_counts_per_g"] / earth.STANDARD_GRAVITY}
+        x = accel - tri["approx_zero_count"]
+    else:
+        per_unit = None
+        x = accel
+    w = window_samples(1.0, fs) if len(x) >= window_samples(1.0, fs) else 3
+    stat = moving_variance_norm(x, w) if len(x) >= w else np.zeros(len(x))
+    quiet = stat <= np.percentile(stat, 25)
+    m = float(np.median(np.linalg.norm(x[quiet], axis=1)))
+
+    def expected(u):  # gravity expressed in unit u (per sample for increments)
+        if per_unit is not None:
+            val = g_ref * per_unit["count"]
+        else:
+            val = g_ref / recording.unit_factor(u)
+        return val * dt if kind == "increment" else val
+
+    exp = expected(units)
+    ratio = m / exp
+    if abs(ratio - 1.0) <= tol:
+        return f"passed: quiet-sample accel norm {m:.5g} {units} = {ratio:.4f} x local gravity"
+    if units == "count":
+        fix = "check accel.approx_counts_per_g / approx_zero_count"
+    else:
+        fix = "check accel.units and accel.scale"
+        for u in recording.UNITS[("accel", kind)]:
+            if u != units and recording.unit_factor(u) is not None and abs(m / expected(u) - 1.0) <= tol:
+                fix = f"the data look like '{u}': declare accel.units: '{u}'"
+                break
+    raise ImportDataError(path, "accel.units", f"declared '{units}' but the median accel norm at rest is {m:.5g}, "
+                          f"{ratio:.3g} x local gravity ({exp:.5g} {units})", fix)
+
+
+def gyro_deg_factor(tri):
+    """Multiplier taking stored gyro values to deg/s (rate) or deg (increment); None when unknown."""
+    if tri["units"] == "count":
+        if tri["kind"] == "rate" and "approx_counts_per_deg_s" in tri:
+            return 1.0 / tri["approx_counts_per_deg_s"]
+        return None
+    f = recording.unit_factor(tri["units"])
+    return None if f is None else f * 180.0 / math.pi
+
+
+def check_gyro_peak(path, gyro, tri, fs):
+    f = gyro_deg_factor(tri)
+    if f is None:
+        return
+    peak = float(np.max(np.abs(gyro))) * f * (fs if tri["kind"] == "increment" else 1.0)
+    if peak > MAX_GYRO_DEG_S:
+        raise ImportDataError(path, "gyro.units", f"declared '{tri['units']}' gives a peak rate of {peak:.4g} deg/s, "
+                              f"implausible (> {MAX_GYRO_DEG_S:g} deg/s)",
+                              "check gyro.units (deg s-1 data declared as rad s-1?) and gyro.scale")
+
+
+# --------------------------------------------------------------------------- assembly
+
+
+def apply_triad(raw, tri):
+    return np.ascontiguousarray(raw, dtype=np.float64) * tri["factor"]
+
+
+def finish(settings, fmt, path, accel, gyro, fs, *, time=None, sources=(), segments=None, segment_index=None,
+            temperature=None, extra=None):
+    lat, h, g = site_attrs(settings)
+    ta, tg = triad_settings(settings, "accel"), triad_settings(settings, "gyro")
+    accel = apply_triad(accel, ta)
+    gyro = apply_triad(gyro, tg)
+    if len(accel) < 2:
+        raise ImportDataError(path, "time", f"only {len(accel)} samples", "import a longer recording")
+    check = check_accel_units(path, settings, accel, ta, fs, gravity_ref(lat, h, g))
+    check_gyro_peak(path, gyro, tg, fs)
+    attrs = {"import_format": fmt, "units_check": check,
+             "source_files": "; ".join(display_name(settings, p) for p in sources),
+             "source_sha256": "; ".join(f"{Path(p).name}={sha256(p)}" for p in sources),
+             "import_settings": settings.get("_source", "dict")}
+    for key in ("site_note", "description"):
+        if settings.get(key):
+            attrs[key] = str(settings[key])
+    if extra:
+        attrs.update(extra)
+    return recording.make_dataset(
+        accel, gyro, sample_rate_hz=fs, latitude_deg=lat, height_m=h, gravity_m_s2=g,
+        accel_units=ta["units"], gyro_units=tg["units"], accel_kind=ta["kind"], gyro_kind=tg["kind"],
+        time=time, source="recorded", sensor=str(settings.get("sensor", "")), temperature=temperature,
+        segments=segments, segment_index=segment_index, extra_attrs=attrs)
+
+
+def check_time(path, t, field, numbers=None, fs_declared=None, settings=None):
+    d = np.diff(t)
+    if np.any(d <= 0):
+        i = int(np.argmax(d <= 0))
+        where = f"line {numbers[i + 1]}" if numbers is not None else f"row {i + 1}"
+        raise ImportDataError(path, field, f"timestamps not strictly increasing at {where} "
+                              f"({t[i]:.6f} then {t[i + 1]:.6f})", "fix or drop the out-of-order samples")
+    fs_med = 1.0 / float(np.median(d))
+    if fs_declared is not None and abs(fs_med / fs_declared - 1.0) > 0.01:
+        raise serr(settings, "sample_rate_hz", f"declared {fs_declared:g} Hz but the timestamps in {path} give "
+                    f"{fs_med:.6g} Hz (median step)", "correct sample_rate_hz or the time column's units")
+    return fs_declared if fs_declared is not None else fs_med
