@@ -1,5 +1,9 @@
 """Pure-inertial strapdown navigation in the ENU local-level frame (WGS-84), compiled with numba.
 
+(Kept as one module of ~730 lines on purpose: the two-speed, single-speed and multi-stream kernels share
+``inline='always'`` numba helpers and one state layout; split across modules they would no longer be inlined
+into one compiled loop, and the loop is the hot path of the whole study.)
+
 Frames, units, conventions
 --------------------------
 * ``n`` = East-North-Up local-level frame, ``b`` = IMU body frame (Liu 2021 unit: right-front-up).

@@ -1,5 +1,9 @@
 """Synthetic sessions of the Liu 2021 unit and the He 2019 stationary navigation data.
 
+(Kept as one module of ~770 lines on purpose: the calibration-session and stationary generators share one
+noise-and-quantisation engine, one configuration checker and one truth-sidecar writer, whose private state
+would otherwise have to cross module boundaries.)
+
 Three generators, all deterministic functions of ``(cfg, seed)``:
 
 * :func:`simulate_calibration_session` — the Liu 2021 calibration path (24 static positions and the ±
