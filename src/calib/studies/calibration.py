@@ -25,6 +25,7 @@ from calib.core.progress import Progress
 from calib.core.triad import PARAM_NAMES, TriadModel
 from calib.studies import stages
 from calib.core import seeds
+from calib.io.atomic import write_text
 
 #: how the DE variants of Liu 2021 map to the figures
 FIGURE_OF = {"de_rand1": 2, "de_current_to_best1": 3, "de_integration": 4, "ide": 5}
@@ -208,13 +209,13 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     log(default["noise_note"])
     timing["default_calibration_s"] = time.perf_counter() - t
     ident = _identifiability(inp, runs, default)
-    Path(out / "identifiability.json").write_text(json.dumps(ident, indent=2))
+    write_text(out / "identifiability.json", json.dumps(ident, indent=2))
     write_default(default, out / "default_calibration.json", out / "default_calibration.nc", prov, true_vec)
-    (out / "timings.csv").write_text("quantity,seconds\n" + "".join(f"{k},{v:.4f}\n" for k, v in timing.items()))
+    write_text(out / "timings.csv", "quantity,seconds\n" + "".join(f"{k},{v:.4f}\n" for k, v in timing.items()))
     metrics = {"success_pct": {f"{k[0]}.{k[1]}": v for k, v in success.items()},
                "mean_L": {f"{k[0]}.{k[1]}": float(np.mean(v[1])) for k, v in runs.items()},
                "best_L": best, "rank": {k: v["rank"] for k, v in ident.items() if isinstance(v, dict) and "rank" in v}}
-    (out / "calibration.metrics.json").write_text(json.dumps(metrics, indent=2))
+    write_text(out / "calibration.metrics.json", json.dumps(metrics, indent=2))
     log(json.dumps(metrics, indent=2))
     return metrics
 
@@ -278,7 +279,7 @@ def _table2(path, runs, methods):
             rows.append(f"{m},{mu:.6g},{sd:.6g},{len(runs[('accel', m)][1])},{pm},{ps}")
     rows.append("# L_a of eq. 7 in g^2 (accelerometer input in standard g); the paper's units and noise are not "
                 "stated, so only the ordering is comparable")
-    Path(path).write_text("\n".join(rows) + "\n")
+    write_text(path, "\n".join(rows) + "\n")
 
 
 def _table4(path, runs, problems, method):
@@ -293,7 +294,7 @@ def _table4(path, runs, problems, method):
                     f"{method},{PAPER_TABLE4['dynamic'][0]},{PAPER_TABLE4['dynamic'][1]}")
     rows.append("# L_gm constrains only the three column norms of K_g E_g (Jacobian rank 3 of 9): its installation "
                 "errors are not determined; the static L_g path sees only Earth rate")
-    Path(path).write_text("\n".join(rows) + "\n")
+    write_text(path, "\n".join(rows) + "\n")
 
 
 def _table5(path, runs, methods, success, best, tol):
@@ -309,7 +310,7 @@ def _table5(path, runs, methods, success, best, tol):
             rows.append(f"{sensor},{objective},{m},{success[(key, m)]:.2f},{mu:.6g},{sd:.6g},{len(runs[(key, m)][1])},{pp}")
     rows.append(f"# success: final L <= (1 + {tol}) L*, with L* the best optimum found by 10 multi-start least-squares "
                 f"runs and all runs of all methods (L*: " + "; ".join(f"{k} {v:.6g}" for k, v in best.items()) + ")")
-    Path(path).write_text("\n".join(rows) + "\n")
+    write_text(path, "\n".join(rows) + "\n")
 
 
 def _fig_history(path, hist, title, ylabel):
@@ -432,7 +433,7 @@ def write_default(default, json_path, nc_path, prov, true_vec):
     if gyro is not None and true_vec["gyro"] is not None:
         out["gyro_error"] = dict(zip(PARAM_NAMES, map(float, gyro.paper_vector() - true_vec["gyro"])))
         out["gyro_z"] = dict(zip(gyro.names, map(float, (gyro.x - _match(gyro, true_vec["gyro"])) / gyro.se)))
-    Path(json_path).write_text(json.dumps(out, indent=2))
+    write_text(json_path, json.dumps(out, indent=2))
     coords = {"parameter": list(PARAM_NAMES)}
     data = {"accel": (("parameter",), vec_a, {"long_name": "accelerometer K, E, b in the body frame"}),
             "accel_cov_lin": (("p1", "p2"), acc.cov)}
@@ -569,8 +570,8 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
                                 "(static_check settings); *_segment_sigma: the segment-only sigma on the same seeds",
                     "shared": "noise model from the session's segments and the one static_check recording; "
                               "*_segment_sigma: the segment-only sigma on the same seeds"}[mode]))
-    Path(out_csv).write_text("\n".join(rows) + "\n")
-    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    write_text(out_csv, "\n".join(rows) + "\n")
+    write_text(metrics_path, json.dumps(metrics, indent=2))
     log("\n".join(rows))
     import matplotlib.pyplot as plt
 

@@ -26,6 +26,7 @@ from calib.sim import simulator as simulate
 from calib.signal import allan
 from calib.core.rotations import dcm_to_euler
 from calib.core import seeds
+from calib.io.atomic import write_text
 
 AXES = ["x", "y", "z"]
 #: He 2019 Table 1 (PSOBE, 50 tests) and its Ac values (§IV.A), for comparison
@@ -143,7 +144,7 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
     write_netcdf(ds, out_nc, prov)
     _write_table1(out_table, tab, crb_deg_h)
     _write_baselines(out_baselines, base, truth, crb_deg_h)
-    Path(out_timings).write_text("quantity,seconds\n" + "".join(f"{k},{v:.4f}\n" for k, v in timing.items()))
+    write_text(out_timings, "quantity,seconds\n" + "".join(f"{k},{v:.4f}\n" for k, v in timing.items()))
     _fig2(fig2, est, truth, crb_deg_h)
     _fig3(fig3, hist[0], dcfg["position_unit"])
     z = (est.mean(0) - truth) / crb_deg_h
@@ -152,7 +153,7 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
                "pso_mean_error_in_bounds": dict(zip(AXES, z.tolist())),
                "pso_spread_over_bound": dict(zip(AXES, (tab["std"] / crb_deg_h).tolist())),
                **{f"{m}_error_in_bounds": dict(zip(AXES, ((base[m] - truth) / crb_deg_h).tolist())) for m in base}}
-    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    write_text(metrics_path, json.dumps(metrics, indent=2))
     log(json.dumps(metrics, indent=2))
     return ds
 
@@ -166,7 +167,7 @@ def _write_table1(path, tab, crb):
                                                                             "Ac_of_mean_pct", "Ac_mean_pct")]
                              + [f"{crb[i]:.6g}", f"{lim:.2f}", f"{PAPER_TABLE1['mean'][i]}",
                                 f"{PAPER_TABLE1['std'][i]}", f"{PAPER_TABLE1['Ac_pct'][i]}"]))
-    Path(path).write_text("\n".join(rows) + "\n")
+    write_text(path, "\n".join(rows) + "\n")
 
 
 def _write_baselines(path, base, truth, crb):
@@ -176,7 +177,7 @@ def _write_baselines(path, base, truth, crb):
         ac = pso.accuracy(e, truth)
         z = (e - truth) / crb
         rows.append(",".join([m] + [f"{v:.6g}" for v in e] + [f"{v:.2f}" for v in ac] + [f"{v:.2f}" for v in z]))
-    Path(path).write_text("\n".join(rows) + "\n")
+    write_text(path, "\n".join(rows) + "\n")
 
 
 def _fig2(path, est, truth, crb):
@@ -288,7 +289,7 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
     # bound on the polar component of the estimate: propagate the per-axis CRB (independent approximation)
     cvec = C.T @ np.array([0.0, math.cos(lat0), math.sin(lat0)])
     metrics["polar_bound_deg_h"] = float(math.sqrt(np.sum((cvec * crb) ** 2)))
-    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    write_text(metrics_path, json.dumps(metrics, indent=2))
     log(json.dumps(metrics, indent=2))
     return ds
 
@@ -376,8 +377,8 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
             rows.append(f"{m},{a},{z[i, :, j].mean():.3f},{z[i, :, j].std(ddof=1):.3f},{within},{n_seeds},{lo},{hi},{ok}")
             metrics[f"{m}.{a}"] = {"mean_z": float(z[i, :, j].mean()), "std_z": float(z[i, :, j].std(ddof=1)),
                                    "within_2_bounds": within}
-    Path(out_csv).write_text("\n".join(rows) + "\n")
-    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    write_text(out_csv, "\n".join(rows) + "\n")
+    write_text(metrics_path, json.dumps(metrics, indent=2))
     log("\n".join(rows))
     import matplotlib.pyplot as plt
 
@@ -463,8 +464,8 @@ def run_real_drift(recording_path, out_json, fig, metrics_path, rcfg: dict, seed
            "initial_attitude_deg": [math.degrees(pitch), math.degrees(roll), 0.0],
            "note": "latitude and heading unknown: the difference may hold any Earth-rate component up to "
                    f"{omega:.3f} deg/h; the band adds 2 Allan sigma of the window mean"}
-    Path(out_json).write_text(json.dumps(out, indent=2))
-    Path(metrics_path).write_text(json.dumps({"within_band_all_level_axes": float(all(w for w in out["within_band"] if w is not None)),
+    write_text(out_json, json.dumps(out, indent=2))
+    write_text(metrics_path, json.dumps({"within_band_all_level_axes": float(all(w for w in out["within_band"] if w is not None)),
                                               **{f"difference_{a}_deg_h": float(d) for a, d in zip(AXES, diff)}},
                                              indent=2))
     import matplotlib.pyplot as plt

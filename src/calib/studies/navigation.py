@@ -15,6 +15,7 @@ from calib.io.netcdf import write_netcdf
 from calib.core.triad import TriadModel
 from calib.io.recording import read_header
 from calib.core.progress import Progress
+from calib.io.atomic import write_text
 
 
 def _median_run(path):
@@ -71,7 +72,7 @@ def run_static_check(recording_path, cal_dir, out_nc, fig, metrics_path, check: 
                    "final_position_error_m": float(np.hypot(res["north_err_m"].sel(calibration=m)[-1],
                                                             res["east_err_m"].sel(calibration=m)[-1]))}
                for m in methods}
-    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    write_text(metrics_path, json.dumps(metrics, indent=2))
     return res
 
 

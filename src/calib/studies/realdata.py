@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 
@@ -10,6 +9,7 @@ from calib import fieldcal
 from calib.figures import style as figures
 from calib.io import recording
 from calib.io.netcdf import write_netcdf
+from calib.io.atomic import write_text
 
 
 def calibrate(recording_path, settings: dict, out_nc, out_json, fig, metrics_path, prov=None, log=print):
@@ -19,11 +19,11 @@ def calibrate(recording_path, settings: dict, out_nc, out_json, fig, metrics_pat
     res = fieldcal.fieldcal_recording(ds, settings)
     write_netcdf(res.to_dataset(), out_nc, prov)
     summary = res.summary()
-    Path(out_json).write_text(json.dumps(summary, indent=2, default=str))
+    write_text(out_json, json.dumps(summary, indent=2, default=str))
     _plot_intervals(ds, np.asarray(res.intervals, dtype=np.int64).reshape(-1, 2), res.detection_rule, fig)
     metrics = {k: v for k, v in summary.items() if isinstance(v, (int, float))}
     metrics.update({k: v for k, v in getattr(res, "metrics", {}).items() if isinstance(v, (int, float))})
-    Path(metrics_path).write_text(json.dumps(metrics, indent=2))
+    write_text(metrics_path, json.dumps(metrics, indent=2))
     log(json.dumps(summary, indent=2, default=str))
     return res
 

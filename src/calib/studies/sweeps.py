@@ -54,6 +54,7 @@ from calib.studies.drift import attitude_rad, noise_psd
 from calib.core.earth import DEG_PER_H
 from calib.figures import style as figures
 from calib.core import seeds
+from calib.io.atomic import write_text
 
 KINDS = ("calibration", "drift_pso")
 PROBLEMS = ("accel", "gyro_static", "gyro_dynamic")
@@ -542,12 +543,12 @@ def gather(kind: str, name: str, paths, values: list[dict], columns: list[str], 
     rows = [",".join(columns + list(SUMMARY[kind]))]
     for p, v in zip(dss, values):
         rows.append(",".join([str(v[c]) for c in columns] + [f"{float(p[k]):.6g}" for k in SUMMARY[kind]]))
-    Path(out_csv).write_text("\n".join(rows) + "\n")
+    write_text(out_csv, "\n".join(rows) + "\n")
     summary_figure(ds, kind, name, columns, fig)
     if metrics_path:
         m = {k: {"min": float(np.nanmin(ds[k].values)), "max": float(np.nanmax(ds[k].values))} for k in SUMMARY[kind]}
         m["points"] = len(values)
-        Path(metrics_path).write_text(json.dumps(m, indent=2))
+        write_text(metrics_path, json.dumps(m, indent=2))
     return ds
 
 
