@@ -35,7 +35,7 @@ from scipy.interpolate import CubicSpline
 
 from calib.core import earth
 from calib.core.earth import STANDARD_GRAVITY
-from calib.signal.segments import RATE_UNIT_OF_INCREMENT, input_unit_for
+from calib.signal.segments import RATE_UNIT_OF_INCREMENT, input_unit_for, rate_reading
 
 SENSORS = ("accel", "gyro")
 AXES = ("x", "y", "z")
@@ -163,15 +163,9 @@ def _stitch_angle(a_deg, seg_idx):
 
 
 def rate_readings(ds, sensor):
-    """Per-sample rate readings of ``sensor`` (increments times the sample rate) and their unit."""
-    v = ds[sensor]
-    kind = v.attrs.get("sample_kind")
-    units = v.attrs.get("units")
-    fs = float(ds.attrs["sample_rate_hz"])
-    y = np.asarray(v.values, dtype=np.float64)
-    if kind == "increment":
-        return y * fs, RATE_UNIT_OF_INCREMENT.get(units, f"{units} s-1")
-    return y, units
+    """Per-sample rate readings of ``sensor`` (increments times the sample rate) and their unit
+    (:func:`calib.signal.segments.rate_reading`)."""
+    return rate_reading(ds, sensor)
 
 
 def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_s: float | None = None) -> Geometry:
