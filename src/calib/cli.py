@@ -1,106 +1,221 @@
 """The ``calib`` command line: the same library functions as the workflow rules, for work on single files.
 
     calib simulate calibration OUT.nc [--config config/config.yaml] [--seed N]
-    calib simulate navigation OUT.nc [--hours H]
+    calib simulate navigation OUT.nc [--hours H] [--force]
     calib import SETTINGS.yaml OUT.nc
-    calib validate RECORDING.nc
+    calib validate RECORDING.nc [--force]
     calib calibrate RECORDING.nc --out DIR [--quick] [--noise-record LONG_STATIC.nc]
     calib fieldcal RECORDING.nc [--settings S.yaml] [--out result.nc]
     calib navigate RECORDING.nc --out errors.nc [--calibration DIR/default_calibration.nc]
     calib diagnose RECORDING.nc --out DIR [--settings FILE.yaml|json]
+
+Every recording is checked before any fit (format, time coordinate, masked samples, and the physical
+plausibility of its magnitudes for the declared units: calib.signal.plausibility; --force turns the
+plausibility refusals into warnings), and every result before it is reported as a success.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
+import os
+import shutil
+import signal
 import sys
+import tempfile
+import time
+import traceback
 from pathlib import Path
 
 import yaml
 
+from calib.core.errors import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_SIGINT, CalibError, InputError,
+                               ResultCheckError, Terminated, input_file, load_mapping, schema_error, yaml_problem)
+
 DEFAULT_CONFIG = "config/config.yaml"
+SCHEMA = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
+MAX_HOURS = 240.0            # longest synthetic recording without --force (He 2019's 240 h)
+BYTES_PER_SAMPLE = 6 * 8 + 4  # accel + gyro float64 + float32 temperature: the largest a simulated sample takes
+FORCE_HELP = "run despite implausible magnitudes for the declared units (the refusals become warnings)"
+EPILOG = "exit codes:\n" + "\n".join(f"  {code:3d}  {text}" for code, text in EXIT_CODES)
+
+
+# --------------------------------------------------------------------------- inputs, outputs, settings
+
+
+def _output_file(path, what="output") -> Path:
+    """The parent folder of an output file must exist and be writable; the output must not be a folder."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"is a folder; the {what} needs a file name", file=p)
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"folder of the {what} does not exist" if not parent.exists() else "is not a folder",
+                         file=parent, fix=f"create it first (mkdir -p {parent}) or choose another path")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"folder not writable for the {what}", file=parent, fix="choose a writable folder")
+    return p
+
+
+def _output_dir(path) -> Path:
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError("exists and is not a folder", file=p, fix="give a folder for the outputs")
+    return p
 
 
 def _config(path):
-    p = Path(path)
-    if not p.exists():
-        raise SystemExit(f"config file {p} not found -- pass --config")
-    cfg = yaml.safe_load(p.read_text())
-    schema = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
-    if schema.exists():
+    if not Path(path).exists():
+        raise InputError("config file not found", file=path, fix="pass --config PATH")
+    cfg = load_mapping(path, "config file")
+    if SCHEMA.exists():
+        err = schema_error(cfg, yaml.safe_load(SCHEMA.read_text()), path, Path(path).read_text(),
+                           f"workflow/schemas/{SCHEMA.name}")
+        if err is not None:
+            raise err
         from snakemake.utils import validate
 
-        validate(cfg, str(schema))
+        try:
+            validate(cfg, str(SCHEMA))  # fills the schema's defaults
+        except Exception as exc:  # noqa: BLE001 - any other refusal: its first line only, never the dump
+            raise InputError(str(exc).strip().splitlines()[0][:200], file=path) from None
     return cfg
+
+
+def _recording(path, force=False, what="recording"):
+    """Format check (calib.io.recording.validate) and physical plausibility of a recording before any fit."""
+    from calib.io import recording
+    from calib.signal import plausibility
+
+    h = recording.validate(input_file(path, what))
+    pl = plausibility.check_recording(path, h, force=force)
+    for w in pl.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return h, pl
+
+
+def _positive(value, option):
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise InputError(f"{option} must be positive (got {value:g})")
+    return value
+
+
+# --------------------------------------------------------------------------- sub-commands
 
 
 def cmd_simulate(a):
     from calib.studies import stages
 
     cfg = _config(a.config)
+    if a.hours is not None:
+        if a.kind == "calibration":
+            raise InputError("--hours applies to 'navigation' and 'static_check'; the calibration session's length "
+                             "follows from calibration_session in the config")
+        _positive(a.hours, "--hours")
+        if a.hours > MAX_HOURS and not a.force:
+            raise InputError(f"--hours {a.hours:g} is above {MAX_HOURS:g} h", fix="pass --force for a longer recording")
+    if a.seed is not None and a.seed < 0:
+        raise InputError(f"--seed must be >= 0 (got {a.seed})")
     key = {"calibration": "calibration_session", "navigation": "navigation_session"}.get(a.kind, a.kind)
     seed = stages.session_seed(cfg["seeds"]["data"], key) if a.seed is None else a.seed
     truth = a.truth or str(Path(a.out).with_suffix(".truth.json"))
+    _output_file(a.out, "recording")
+    _output_file(truth, "truth file")
+    if a.kind != "calibration":
+        _check_disk(a.out, a.hours or cfg[key]["duration_h"],
+                    cfg[key].get("sample_rate_hz", cfg["calibration_session"]["sample_rate_hz"]))
     if a.kind == "calibration":
         stages.simulate_calibration(cfg["calibration_session"], cfg["site"], seed, a.out, truth)
     elif a.kind == "navigation":
         s = dict(cfg["navigation_session"])
-        if a.hours:
+        if a.hours is not None:
             s["duration_h"] = a.hours
         stages.simulate_navigation(s, cfg["site"], seed, a.out, truth)
     else:
         c = dict(cfg["static_check"])
-        if a.hours:
+        if a.hours is not None:
             c["duration_h"] = a.hours
         stages.simulate_static_check(c, cfg["calibration_session"], cfg["site"], seed, a.out, truth)
     print(f"wrote {a.out} (truth in {truth})")
 
 
+def _check_disk(out, hours, fs):
+    """Refuse a long recording that would not fit on the disk of its folder."""
+    need = float(hours) * 3600.0 * float(fs) * BYTES_PER_SAMPLE * 1.02 + 16e6
+    folder = Path(out).parent if str(Path(out).parent) else Path(".")
+    free = shutil.disk_usage(folder).free
+    if need > free:
+        raise InputError(f"{hours:g} h at {fs:g} Hz needs about {need / 1e9:.2f} GB but only {free / 1e9:.2f} GB "
+                         "are free", file=folder, fix="free space, write elsewhere or shorten --hours")
+
+
 def cmd_import(a):
     from calib.ingest import importers
 
+    load_mapping(a.settings, "import settings file")   # missing, folder, malformed YAML: refused with the line
+    _output_file(a.out, "recording")                     # an output folder is never created silently
     out = importers.import_recording(importers.load_settings(a.settings), a.out)
     print(f"wrote {out}")
 
 
 def cmd_validate(a):
-    from calib.io import recording
-
-    h = recording.validate(a.recording)
+    h, pl = _recording(a.recording, a.force)
     print(f"{a.recording}: valid calib-recording-1, {h.n_samples} samples at {h.sample_rate_hz} Hz "
           f"({h.duration_s / 3600:.3f} h), latitude {h.latitude_deg} deg; accel {h.accel_kind} [{h.accel_units}], "
           f"gyro {h.gyro_kind} [{h.gyro_units}]")
+    print(f"{a.recording}: plausible: {pl.describe()}")
 
 
 def cmd_calibrate(a):
+    from calib.signal import plausibility
     from calib.studies import calibration as calibration_study
 
     cfg = _config(a.config)
+    _recording(a.recording, a.force)
+    if a.truth:
+        input_file(a.truth, "truth file")
+    if a.noise_record:
+        _recording(a.noise_record, a.force, "noise record")
+    _output_dir(a.out)
     cc = dict(cfg["calibration"])
     if a.quick:
         cc.update(runs=3, methods=["ide", "ide_lsq", "lsq"])
     calibration_study.run_study(a.recording, a.truth, a.out, cc, cfg["seeds"]["calibration"],
                                 noise_record=a.noise_record)
+    plausibility.check_calibration_result(Path(a.out) / "default_calibration.nc")
 
 
 def cmd_fieldcal(a):
     from calib import fieldcal
     from calib.io.netcdf import write_netcdf
+    from calib.signal import plausibility
 
     settings = None
     if a.settings:
-        settings = yaml.safe_load(Path(a.settings).read_text())
+        settings = load_mapping(a.settings)
         if "format" in settings:  # an import-settings file: use its optional 'fieldcal:' section
             settings = settings.get("fieldcal")
+    h, _ = _recording(a.recording, a.force)
+    if a.out:
+        _output_file(a.out, "calibration")
     res = fieldcal.fieldcal_recording(a.recording, settings)
     print(json.dumps(res.summary(), indent=2, default=str))
     if a.out:
         write_netcdf(res.to_dataset(), a.out)
+    plausibility.check_fieldcal_result(res, h.accel_units == "count", h.gyro_units == "count", a.out or a.recording)
 
 
 def cmd_navigate(a):
+    from calib.signal import plausibility
     from calib.studies import navigation as navigation_study
 
+    _positive(a.nav_rate, "--nav-rate")
+    _positive(a.output_interval, "--output-interval")
+    if a.calibration:
+        plausibility.check_calibration_file(input_file(a.calibration, "calibration file"))
+    _recording(a.recording, a.force)
+    _output_file(a.out, "navigation output")
     nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
     navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs")
     print(f"wrote {a.out}")
@@ -111,23 +226,127 @@ def cmd_diagnose(a):
 
     settings = None
     if a.settings:   # overrides of calib.diagnosis.DEFAULT_SETTINGS
-        txt = Path(a.settings).read_text()
-        settings = yaml.safe_load(txt) if a.settings.endswith((".yaml", ".yml")) else json.loads(txt)
+        settings = load_mapping(a.settings)
+    _output_dir(a.out)
+    try:
+        _recording(a.recording, a.force)
+    except InputError as exc:
+        _diagnose_refusal(a.recording, settings, a.out, exc)
+        raise
     rep = diagnose(a.recording, settings, out_dir=a.out)
     print(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
-    return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 2)   # exit code: 2 inconclusive
+    return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 3)   # exit code: 3 inconclusive
+
+
+def _diagnose_refusal(path, settings, out_dir, exc):
+    """A refused input is recorded as an 'inconclusive' report, but only in a folder without an earlier report:
+    a failed run never replaces a previous report."""
+    from calib.diagnosis import DEFAULT_SETTINGS, inconclusive_report, report_markdown
+    from calib.io.atomic import write_json, write_text
+
+    out = Path(out_dir)
+    if (out / "report.json").exists() or (out / "report.md").exists():
+        return
+    rep = inconclusive_report(path, {**DEFAULT_SETTINGS, **(settings or {})}, f"cannot read the recording: {exc}",
+                              "give a valid calib-recording-1 file")
+    write_json(rep, out / "report.json")
+    write_text(out / "report.md", report_markdown(rep))
+
+
+# --------------------------------------------------------------------------- dispatch: one exit-code contract
+
+
+@contextlib.contextmanager
+def _signals():
+    """SIGINT and SIGTERM raise KeyboardInterrupt / Terminated (the same clean path: atomic writers delete their
+    temporary files); a second signal during the clean-up is ignored."""
+    def handler(signum, frame):
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, signal.SIG_IGN)
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise Terminated(signum)
+
+    old = {}
+    with contextlib.suppress(ValueError):   # not the main thread: leave the handlers alone
+        for s in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(s) is not signal.SIG_IGN:
+                old[s] = signal.signal(s, handler)
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _say(text):
+    print(" ".join(str(text).split()) if "\n" in str(text) else text, file=sys.stderr)
+
+
+def _os_message(exc: OSError) -> str:
+    where = f"{exc.filename}: " if exc.filename else ""
+    return f"{where}{exc.strerror or exc}"
+
+
+def _internal_error(name, exc) -> int:
+    """One line on the terminal; the traceback in a log file in the system temporary folder."""
+    text = " ".join(f"{type(exc).__name__}: {exc}".split())[:300]
+    try:
+        fd, log = tempfile.mkstemp(prefix="calib-error-", suffix=".log")
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"{name} ({' '.join(sys.argv)}) at {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
+            fh.write(traceback.format_exc())
+        where = f"traceback in {log}"
+    except OSError:
+        where = "no log file could be written"
+    _say(f"{name}: internal error: {text} ({where}; please report it)")
+    return EXIT_INTERNAL
+
+
+def _dispatch(a) -> int:
+    """Run the sub-command and map every outcome to the exit-code contract (calib.core.errors.EXIT_CODES)."""
+    name = f"calib {a.cmd}"
+    try:
+        with _signals():
+            code = a.fn(a)
+        return code or 0
+    except KeyboardInterrupt as exc:
+        sig = "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
+        _say(f"{name}: interrupted by {sig}; no partial output left, earlier outputs kept")
+        return getattr(exc, "exit_code", EXIT_SIGINT)
+    except ResultCheckError as exc:
+        _say(f"{name}: result check failed: {exc}")
+        return exc.exit_code
+    except CalibError as exc:
+        _say(f"{name}: error: {exc}")
+        return exc.exit_code
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{mark.name}: line {mark.line + 1}: " if mark is not None else ""
+        _say(f"{name}: error: {where}{yaml_problem(exc)}")
+        return EXIT_INPUT
+    except (ValueError, OSError, MemoryError) as exc:  # RecordingError and friends carry file, field and fix
+        text = _os_message(exc) if isinstance(exc, OSError) else ("not enough memory" if isinstance(exc, MemoryError)
+                                                                  else str(exc))
+        _say(f"{name}: error: {text}")
+        return EXIT_INPUT
+    except Exception as exc:  # noqa: BLE001 - anything else is a bug: one line, the traceback in a log
+        return _internal_error(name, exc)
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="calib", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(prog="calib", description=__doc__, epilog=EPILOG,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("simulate", help="synthetic sessions (data stage)")
     s.add_argument("kind", choices=["calibration", "navigation", "static_check"])
     s.add_argument("out")
     s.add_argument("--config", default=DEFAULT_CONFIG)
     s.add_argument("--seed", type=int)
-    s.add_argument("--hours", type=float)
+    s.add_argument("--hours", type=float,
+                   help=f"length of a navigation / static_check session, 0 < H <= {MAX_HOURS:g}")
     s.add_argument("--truth")
+    s.add_argument("--force", action="store_true", help=f"allow --hours above {MAX_HOURS:g}")
     s.set_defaults(fn=cmd_simulate)
     s = sub.add_parser("import", help="import a real recording with a settings YAML (config/import/*.yaml)")
     s.add_argument("settings")
@@ -135,6 +354,7 @@ def main(argv=None):
     s.set_defaults(fn=cmd_import)
     s = sub.add_parser("validate", help="check a calib-recording-1 file")
     s.add_argument("recording")
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_validate)
     s = sub.add_parser("calibrate", help="Liu 2021 calibration study on a session with a segment table")
     s.add_argument("recording")
@@ -145,11 +365,13 @@ def main(argv=None):
     s.add_argument("--noise-record", default=None,
                    help="long static recording of the same unit: its Allan deviation gives the bias instability "
                         "(slow noise) of the default calibration's segment means")
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_calibrate)
     s = sub.add_parser("fieldcal", help="calibration without a turntable record (real recordings)")
     s.add_argument("recording")
     s.add_argument("--settings")
     s.add_argument("--out")
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_fieldcal)
     s = sub.add_parser("navigate", help="pure-inertial navigation of a stationary recording")
     s.add_argument("recording")
@@ -158,19 +380,16 @@ def main(argv=None):
     s.add_argument("--nav-rate", type=float, default=10.0)
     s.add_argument("--output-interval", type=float, default=60.0)
     s.add_argument("--align", action="store_true", help="self-align instead of using the recorded attitude")
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_navigate)
     s = sub.add_parser("diagnose", help="locate and name the physics a model leaves out")
     s.add_argument("recording")
     s.add_argument("--out", required=True)
     s.add_argument("--settings", help="JSON or YAML file overriding calib.diagnosis.DEFAULT_SETTINGS")
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
-    a = p.parse_args(argv)
-    try:
-        code = a.fn(a)
-    except (ValueError, FileNotFoundError) as exc:  # RecordingError and friends carry file, field and fix
-        print(f"calib {a.cmd}: error: {exc}", file=sys.stderr)
-        return 2
-    return code or 0
+    a = p.parse_args(argv)   # argparse's own usage errors exit 2
+    return _dispatch(a)
 
 
 if __name__ == "__main__":

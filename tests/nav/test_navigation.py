@@ -474,13 +474,14 @@ FS = 100.0
 
 
 def _write(tmp_path, name, accel, gyro, accel_units, gyro_units, kind="increment", attrs=None, time=None,
-           drop_latitude=False):
+           drop_latitude=False, unchecked=False):
     ds = recording.make_dataset(accel, gyro, sample_rate_hz=FS, latitude_deg=math.degrees(LAT), height_m=H,
                                 accel_units=accel_units, gyro_units=gyro_units, accel_kind=kind, gyro_kind=kind,
                                 time=time, extra_attrs=attrs)
     path = tmp_path / name
-    if drop_latitude:
-        del ds.attrs["latitude_deg"]
+    if drop_latitude or unchecked:  # files the validating writer refuses
+        if drop_latitude:
+            del ds.attrs["latitude_deg"]
         from calib.io.netcdf import write_netcdf
 
         write_netcdf(ds, path)
@@ -552,7 +553,7 @@ def test_navigate_recording_bad_inputs_raise_clear_errors(tmp_path):
         navigation.navigate_recording(p, output_interval_s=0.25)
     t = np.arange(n) / FS
     t[1000:] += 0.5  # half a second missing
-    p = _write(tmp_path, "gap.nc", acc, gyr, "m s-1", "rad", attrs=ATT_ATTRS, time=t)
+    p = _write(tmp_path, "gap.nc", acc, gyr, "m s-1", "rad", attrs=ATT_ATTRS, time=t, unchecked=True)
     with pytest.raises(RecordingError, match="gap") as exc:
         navigation.navigate_recording(p)
     assert "samples 999 and 1000" in str(exc.value)

@@ -75,16 +75,24 @@ class AtomicNetCDF:
         self.nc = None
 
     def __enter__(self) -> netCDF4.Dataset:
-        self.nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
+        try:
+            self.nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                self.tmp.unlink()
+            raise
         return self.nc
 
     def __exit__(self, exc_type, exc, tb):
         try:
             self.nc.close()
-        finally:
             if exc_type is None:
                 os.replace(self.tmp, self.path)
-            else:
-                with contextlib.suppress(FileNotFoundError):
-                    self.tmp.unlink()
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                self.tmp.unlink()
+            raise
+        if exc_type is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self.tmp.unlink()
         return False

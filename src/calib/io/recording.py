@@ -30,6 +30,8 @@ import numpy as np
 import xarray as xr
 
 from calib.core import earth
+from calib.core.errors import InputError
+from calib.io.atomic import atomic_path
 from calib.io.netcdf import AtomicNetCDF, write_netcdf
 
 CONVENTIONS = "calib-recording-1"
@@ -56,15 +58,19 @@ TO_SI = {
 LONG_FILE_SAMPLES = 2_000_000  # above this, writers omit the explicit time coordinate
 
 
-class RecordingError(ValueError):
-    """A recording that breaks ``calib-recording-1``; the message names the file, the variable and the fix."""
+class RecordingError(InputError):
+    """A recording that breaks ``calib-recording-1``; the message names the file, the variable and the fix.
+
+    An :class:`calib.core.errors.InputError` (exit 2 of the command line) and so a ``ValueError``.
+    """
 
     def __init__(self, path, variable, problem, fix=""):
         self.path, self.variable, self.problem = str(path), variable, problem
-        msg = f"{path}: variable '{variable}': {problem}"
-        if fix:
-            msg += f" -- fix: {fix}"
-        super().__init__(msg)
+        super().__init__(problem, file=str(path), field=f"variable '{variable}'", fix=fix or None)
+
+    def text(self) -> str:
+        msg = f"{self.path}: variable '{self.variable}': {self.problem}"
+        return msg + (f" -- fix: {self.fix}" if self.fix else "")
 
 
 @dataclass(frozen=True)
@@ -101,89 +107,174 @@ def unit_factor(units: str) -> float | None:
     return TO_SI.get(units)
 
 
+#: a step of the time coordinate longer than this many nominal sample periods is a gap, refused
+GAP_PERIODS = 1.5
+#: the declared ``sample_rate_hz`` must agree with the least-squares clock of the time coordinate to this
+CLOCK_REL_TOL = 0.01
+#: local gravity outside this range [m s-2] is not a value in m s-2 for a site on the Earth
+GRAVITY_RANGE_M_S2 = (9.0, 10.5)
+UNREADABLE_FIX = "re-export or re-import the recording"
+
+
 def _attr(nc, name, default=None):
     return nc.getncattr(name) if name in nc.ncattrs() else default
 
 
+def _number(path, nc, name, default=None):
+    """A numeric global attribute as a float (``default`` when absent); a RecordingError when not a number."""
+    v = _attr(nc, name, default)
+    if v is None:
+        return None
+    try:
+        arr = np.asarray(v, dtype=float)
+        if arr.size != 1:
+            raise ValueError("not a scalar")
+        return float(arr.reshape(-1)[0])
+    except (TypeError, ValueError):
+        raise RecordingError(path, name, f"global attribute is {v!r}, not a number") from None
+
+
+def _unreadable(path, exc) -> RecordingError:
+    """What a reader raises for a file the netCDF library cannot read (truncated, corrupted, not netCDF)."""
+    if isinstance(exc, PermissionError):
+        return RecordingError(path, "-", "permission denied", "make the file readable")
+    return RecordingError(path, "-", f"not a readable netCDF file ({type(exc).__name__}: {exc}); truncated or not "
+                          "netCDF", UNREADABLE_FIX)
+
+
+def _open(path):
+    path = Path(path)
+    if not path.exists():
+        raise RecordingError(path, "-", "file not found")
+    if path.is_dir():
+        raise RecordingError(path, "-", "is a folder, not a recording file", "give the path of a .nc recording")
+    try:
+        return netCDF4.Dataset(path, "r")
+    except Exception as exc:  # noqa: BLE001 - whatever the netCDF library raises, the file is unreadable
+        raise _unreadable(path, exc) from exc
+
+
+def check_clock(path, t, fs: float) -> None:
+    """The time coordinate ``t`` against the nominal rate ``fs``: no step longer than :data:`GAP_PERIODS`
+    sample periods (a gap, named by its samples, time and size), and the least-squares clock (slope of ``t``
+    against the sample index, robust to jitter) within :data:`CLOCK_REL_TOL` of ``fs``."""
+    n = len(t)
+    d = np.diff(t)
+    period = 1.0 / fs
+    gap = d > GAP_PERIODS * period
+    if gap.any():
+        i = int(np.argmax(gap))
+        raise RecordingError(path, "time", f"time gap of {d[i]:.6g} s ({d[i] / period:.3g} sample periods of "
+                             f"{period:.6g} s) between samples {i} and {i + 1} (t = {t[i]:.6f} s); "
+                             f"{int(gap.sum())} step(s) longer than {GAP_PERIODS} periods in all",
+                             "split the recording at the gap or fill it at the source (calib does not interpolate)")
+    k = np.arange(n, dtype=float)
+    k -= k.mean()
+    slope = float(k @ (t - t.mean())) / float(k @ k)
+    fs_clock = 1.0 / slope
+    if abs(fs_clock / fs - 1.0) > CLOCK_REL_TOL:
+        raise RecordingError(path, "sample_rate_hz", f"declared {fs:.6g} Hz but the time coordinate gives "
+                             f"{fs_clock:.6g} Hz (least-squares clock over {n} samples; tolerance "
+                             f"{100 * CLOCK_REL_TOL:g} %)",
+                             "correct sample_rate_hz or the units of the time coordinate")
+
+
 def read_header(path) -> Header:
-    """Open ``path`` and check everything that can be checked without reading the samples.
+    """Open ``path`` and check everything that can be checked without reading the samples (the time
+    coordinate included: monotonic, no gaps, consistent with ``sample_rate_hz``).
 
     Raises :class:`RecordingError` naming the file, the variable and what is wrong.
     """
     path = Path(path)
-    if not path.exists():
-        raise RecordingError(path, "-", "file not found")
+    nc = _open(path)
     try:
-        nc = netCDF4.Dataset(path, "r")
-    except OSError as exc:
-        raise RecordingError(path, "-", f"not a readable netCDF file ({exc}); truncated or not netCDF",
-                             "re-export or re-import the recording") from exc
-    try:
-        conv = _attr(nc, "conventions")
-        if conv != CONVENTIONS:
-            raise RecordingError(path, "conventions", f"global attribute is {conv!r}, expected {CONVENTIONS!r}")
-        for dim in ("time", "axis"):
-            if dim not in nc.dimensions:
-                raise RecordingError(path, dim, "dimension missing")
-        if len(nc.dimensions["axis"]) != 3:
-            raise RecordingError(path, "axis", f"length {len(nc.dimensions['axis'])}, expected 3 (x, y, z)")
-        n = len(nc.dimensions["time"])
-        if n < 2:
-            raise RecordingError(path, "time", f"only {n} samples", "record at least two samples")
-        lat = _attr(nc, "latitude_deg")
-        if lat is None:
-            raise RecordingError(path, "latitude_deg", "required global attribute missing",
-                                 "set the site latitude (degrees) in the import settings")
-        lat = float(lat)
-        if not (-90.0 <= lat <= 90.0) or not math.isfinite(lat):
-            raise RecordingError(path, "latitude_deg", f"value {lat} outside [-90, 90] degrees")
-        height = float(_attr(nc, "height_m", 0.0))
-        kinds = {}
-        for var in ("accel", "gyro"):
-            if var not in nc.variables:
-                raise RecordingError(path, var, "variable missing")
-            v = nc.variables[var]
-            if v.dimensions != ("time", "axis"):
-                raise RecordingError(path, var, f"dimensions {v.dimensions}, expected ('time', 'axis')")
-            kind = _attr(v, "sample_kind")
-            if kind not in ("rate", "increment"):
-                raise RecordingError(path, var, f"attribute sample_kind={kind!r}, expected 'rate' or 'increment'")
-            units = _attr(v, "units")
-            allowed = UNITS[(var, kind)]
-            if units not in allowed:
-                raise RecordingError(path, var, f"units={units!r} not allowed for sample_kind={kind!r}",
-                                     f"declare one of {', '.join(allowed)}")
-            kinds[var] = (kind, units)
-        has_time = "time" in nc.variables
-        if has_time:
-            t = np.asarray(nc.variables["time"][:], dtype=float)
-            if t.shape != (n,):
-                raise RecordingError(path, "time", f"shape {t.shape}, expected ({n},)")
-            if not np.all(np.isfinite(t)):
-                raise RecordingError(path, "time", "contains NaN or Inf")
-            d = np.diff(t)
-            if np.any(d <= 0):
-                i = int(np.argmax(d <= 0))
-                raise RecordingError(path, "time", f"not strictly increasing at sample {i + 1} "
-                                     f"(t={t[i]:.6f} s then {t[i + 1]:.6f} s)")
-            fs = float(_attr(nc, "sample_rate_hz", 1.0 / np.median(d)))
-            t0 = float(t[0])
-        else:
-            fs = _attr(nc, "sample_rate_hz")
-            t0 = _attr(nc, "t0_s")
-            if fs is None or t0 is None:
-                raise RecordingError(path, "time", "no time variable and no t0_s/sample_rate_hz attributes",
-                                     "add a time coordinate or both global attributes")
-            fs, t0 = float(fs), float(t0)
-        if not (fs > 0 and math.isfinite(fs)):
-            raise RecordingError(path, "sample_rate_hz", f"value {fs} is not a positive rate")
-        g = _attr(nc, "gravity_m_s2")
-        g = float(g) if g is not None else float(earth.normal_gravity(math.radians(lat), height))
-        attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
-        return Header(str(path), n, fs, t0, has_time, lat, height, g,
-                      kinds["accel"][0], kinds["accel"][1], kinds["gyro"][0], kinds["gyro"][1], attrs)
+        return _header(path, nc)
+    except RecordingError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+        raise _unreadable(path, exc) from exc
     finally:
         nc.close()
+
+
+def _header(path, nc) -> Header:
+    conv = _attr(nc, "conventions")
+    if conv != CONVENTIONS:
+        raise RecordingError(path, "conventions", f"global attribute is {conv!r}, expected {CONVENTIONS!r}")
+    for dim in ("time", "axis"):
+        if dim not in nc.dimensions:
+            raise RecordingError(path, dim, "dimension missing")
+    if len(nc.dimensions["axis"]) != 3:
+        raise RecordingError(path, "axis", f"length {len(nc.dimensions['axis'])}, expected 3 (x, y, z)")
+    n = len(nc.dimensions["time"])
+    if n < 2:
+        raise RecordingError(path, "time", f"only {n} samples", "record at least two samples")
+    lat = _number(path, nc, "latitude_deg")
+    if lat is None:
+        raise RecordingError(path, "latitude_deg", "required global attribute missing",
+                             "set the site latitude (degrees) in the import settings")
+    if not (-90.0 <= lat <= 90.0) or not math.isfinite(lat):
+        raise RecordingError(path, "latitude_deg", f"value {lat} outside [-90, 90] degrees")
+    height = _number(path, nc, "height_m", 0.0)
+    if not math.isfinite(height):
+        raise RecordingError(path, "height_m", f"value {height} is not finite")
+    kinds = {}
+    for var in ("accel", "gyro"):
+        if var not in nc.variables:
+            raise RecordingError(path, var, "variable missing")
+        v = nc.variables[var]
+        if v.dimensions != ("time", "axis"):
+            raise RecordingError(path, var, f"dimensions {v.dimensions}, expected ('time', 'axis')")
+        kind = _attr(v, "sample_kind")
+        if kind not in ("rate", "increment"):
+            raise RecordingError(path, var, f"attribute sample_kind={kind!r}, expected 'rate' or 'increment'")
+        units = _attr(v, "units")
+        allowed = UNITS[(var, kind)]
+        if units not in allowed:
+            raise RecordingError(path, var, f"units={units!r} not allowed for sample_kind={kind!r}",
+                                 f"declare one of {', '.join(allowed)}")
+        kinds[var] = (kind, units)
+    has_time = "time" in nc.variables
+    if has_time:
+        tv = nc.variables["time"][:]
+        if np.ma.is_masked(tv):
+            i = int(np.argmax(np.ma.getmaskarray(tv).reshape(-1)))
+            raise RecordingError(path, "time", f"masked (_FillValue) time at sample {i}",
+                                 "remove the samples without a time stamp before import")
+        t = np.asarray(np.ma.getdata(tv), dtype=float)
+        if t.shape != (n,):
+            raise RecordingError(path, "time", f"shape {t.shape}, expected ({n},)")
+        if not np.all(np.isfinite(t)):
+            raise RecordingError(path, "time", "contains NaN or Inf")
+        d = np.diff(t)
+        if np.any(d <= 0):
+            i = int(np.argmax(d <= 0))
+            raise RecordingError(path, "time", f"not strictly increasing at sample {i + 1} "
+                                 f"(t={t[i]:.6f} s then {t[i + 1]:.6f} s)")
+        fs = _number(path, nc, "sample_rate_hz", 1.0 / np.median(d))
+        t0 = float(t[0])
+    else:
+        fs = _number(path, nc, "sample_rate_hz")
+        t0 = _number(path, nc, "t0_s")
+        if fs is None or t0 is None:
+            raise RecordingError(path, "time", "no time variable and no t0_s/sample_rate_hz attributes",
+                                 "add a time coordinate or both global attributes")
+    if not (fs > 0 and math.isfinite(fs)):
+        raise RecordingError(path, "sample_rate_hz", f"value {fs} is not a positive rate")
+    if not math.isfinite(t0):
+        raise RecordingError(path, "t0_s", f"value {t0} is not finite")
+    if has_time:
+        check_clock(path, t, fs)
+    g = _number(path, nc, "gravity_m_s2")
+    if g is None:
+        g = float(earth.normal_gravity(math.radians(lat), height))
+    elif not (GRAVITY_RANGE_M_S2[0] <= g <= GRAVITY_RANGE_M_S2[1]):
+        raise RecordingError(path, "gravity_m_s2", f"value {g} is not a local gravity in m s-2 (expected "
+                             f"{GRAVITY_RANGE_M_S2[0]}..{GRAVITY_RANGE_M_S2[1]})",
+                             "give local gravity in m s-2, or leave it out for WGS-84 normal gravity")
+    attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
+    return Header(str(path), n, fs, t0, has_time, lat, height, g,
+                  kinds["accel"][0], kinds["accel"][1], kinds["gyro"][0], kinds["gyro"][1], attrs)
 
 
 def _check_finite(path, name, arr, offset=0):
@@ -194,9 +285,44 @@ def _check_finite(path, name, arr, offset=0):
                              "remove or interpolate the bad samples before import")
 
 
+def fill_values(var) -> list:
+    """The values that mark a missing sample of a netCDF variable: ``_FillValue`` and ``missing_value``, or
+    (no ``_FillValue`` attribute) the library's default fill of a 32- or 64-bit type (that of an 8- or 16-bit
+    type, e.g. -32767, is a reading a clipped sensor can give); NaN fills left out (NaN is refused as such)."""
+    out = []
+    for name in ("_FillValue", "missing_value"):
+        if name in var.ncattrs():
+            out.extend(np.atleast_1d(var.getncattr(name)).tolist())
+    if "_FillValue" not in var.ncattrs() and np.dtype(var.dtype).itemsize >= 4:
+        fv = var.get_fill_value()
+        if fv is not None:
+            out.append(fv.item() if hasattr(fv, "item") else fv)
+    return [v for v in out if not (isinstance(v, float) and math.isnan(v))]
+
+
+def _check_fill(path, name, arr, fills, offset=0):
+    for fv in fills:
+        bad = arr == fv
+        if bad.any():
+            i = int(np.argmax(bad.reshape(len(arr), -1).any(axis=1)))
+            raise RecordingError(path, name, f"masked sample (_FillValue {fv:g}) at sample {offset + i}: the "
+                                 "value was never recorded", "remove or interpolate the missing samples before import")
+
+
 def validate(path) -> Header:
-    """Full check of a recording: header, segment table and every sample (read in chunks)."""
+    """Full check of a recording: header (time coordinate included), segment table and every sample (read
+    in chunks: NaN/Inf and masked / _FillValue samples are refused with their index)."""
     h = read_header(path)
+    try:
+        _validate_body(path, h)
+    except RecordingError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+        raise _unreadable(path, exc) from exc
+    return h
+
+
+def _validate_body(path, h: Header) -> None:
     with xr.open_dataset(path, engine="netcdf4") as ds:
         if "segment_index" in ds:
             si = ds["segment_index"]
@@ -224,23 +350,30 @@ def validate(path) -> Header:
                 raise RecordingError(path, "rotation_rate", "rotation segments present but no rates")
         if "temperature" in ds:
             _check_finite(path, "temperature", ds["temperature"].values)
+    with netCDF4.Dataset(path, "r") as nc:
+        fills = {v: fill_values(nc.variables[v]) for v in ("accel", "gyro")}
     for start, acc, gyr in iter_raw_chunks(path, h):
         _check_finite(path, "accel", acc, start)
         _check_finite(path, "gyro", gyr, start)
-    return h
+        _check_fill(path, "accel", acc, fills["accel"], start)
+        _check_fill(path, "gyro", gyr, fills["gyro"], start)
 
 
 def iter_raw_chunks(path, header: Header | None = None, chunk: int = 1_000_000, start: int = 0, stop=None):
     """Yield ``(first_sample_index, accel, gyro)`` raw float64 arrays of at most ``chunk`` samples."""
     h = header or read_header(path)
     stop = h.n_samples if stop is None else min(stop, h.n_samples)
-    nc = netCDF4.Dataset(path, "r")
+    nc = _open(path)
     try:
         nc.set_auto_mask(False)
         va, vg = nc.variables["accel"], nc.variables["gyro"]
         for i0 in range(start, stop, chunk):
             i1 = min(i0 + chunk, stop)
-            yield i0, np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
+            try:
+                acc, gyr = np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
+            except Exception as exc:  # noqa: BLE001 - corrupted sample data fail inside the library
+                raise _unreadable(path, exc) from exc
+            yield i0, acc, gyr
     finally:
         nc.close()
 
@@ -251,8 +384,11 @@ def load(path, validate_all: bool = True) -> xr.Dataset:
     Long files without a time coordinate get one computed from ``t0_s`` and ``sample_rate_hz``.
     """
     h = validate(path) if validate_all else read_header(path)
-    with xr.open_dataset(path, engine="netcdf4") as ds:
-        ds = ds.load()
+    try:
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            ds = ds.load()
+    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+        raise _unreadable(path, exc) from exc
     if "time" not in ds.coords:
         ds = ds.assign_coords(time=h.t0_s + np.arange(h.n_samples) / h.sample_rate_hz)
     ds.attrs["_path"] = str(path)
@@ -328,10 +464,16 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
 
 
 def write(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
-    """Write an in-memory recording atomically, then validate what was written."""
-    out = write_netcdf(ds, path, prov)
-    validate(out)
-    return out
+    """Write an in-memory recording atomically: it is validated under its temporary name and appears under
+    ``path`` only when valid, so a refused recording never replaces an earlier file."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        write_netcdf(ds, tmp, prov)
+        try:
+            validate(tmp)
+        except RecordingError as exc:
+            raise RecordingError(path, exc.variable, exc.problem, exc.fix or "") from None
+    return path
 
 
 class LongRecordingWriter:
@@ -358,8 +500,16 @@ class LongRecordingWriter:
                           source=source, sensor=sensor, extra=extra_attrs or {}, chunk=int(chunk_samples))
 
     def __enter__(self):
-        a = self._args
         nc = self.nc = self._atomic.__enter__()
+        try:
+            self._define(nc)
+        except BaseException as exc:  # not entered: the temporary file goes now
+            self._atomic.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        return self
+
+    def _define(self, nc):
+        a = self._args
         nc.createDimension("time", self.n)
         nc.createDimension("axis", 3)
         ax = nc.createVariable("axis", str, ("axis",))
@@ -377,7 +527,6 @@ class LongRecordingWriter:
                  "t0_s": a["t0"], "source": a["source"], "sensor": a["sensor"]}
         attrs.update(a["extra"])
         nc.setncatts(attrs)
-        return self
 
     def append(self, accel, gyro, temperature=None):
         k = len(accel)

@@ -10,6 +10,7 @@ import numpy as np
 import xarray as xr
 
 from calib.figures import style as figures
+from calib.signal import plausibility
 from calib.nav import navigation
 from calib.io.netcdf import write_netcdf
 from calib.core.triad import TriadModel
@@ -109,6 +110,9 @@ def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, 
     bar = Progress(read_header(recording_path).n_samples, f"navigating {Path(recording_path).name}")
     ds = navigation.navigate_recording(recording_path, calibration=cal, init=init, nav_rate_hz=nav["nav_rate_hz"],
                                        output_interval_s=nav["output_interval_s"], progress=lambda d, n: bar(d))
+    # a non-finite solution is refused (exit 3) before it could replace an earlier output
+    plausibility.check_finite_result(ds, out_nc, "check the calibration and the recording's units; the navigation "
+                                     "rate is navigation.nav_rate_hz (calib navigate --nav-rate)")
     write_netcdf(ds, out_nc, prov)
     log(f"final errors: vE {float(ds['vE_err'][-1]):.4f} m/s, vN {float(ds['vN_err'][-1]):.4f} m/s, "
         f"lat {float(ds['lat_err_arcmin'][-1]):.3f}', lon {float(ds['lon_err_arcmin'][-1]):.3f}'")

@@ -1,0 +1,389 @@
+"""Physical plausibility of a recording before any fit, and of a result before it is reported as a success.
+
+The recording format (:mod:`calib.io.recording`) checks structure: units declared, time increasing without
+gaps and consistent with ``sample_rate_hz``, no NaN or masked sample. What it cannot check is whether the
+numbers are what the declared units say. Here, one pass over the samples:
+
+* **single absurd samples**: a specific force above :data:`ABSURD_ACCEL_G` g or a rate above
+  :data:`ABSURD_GYRO_DEG_S` deg/s in the declared units, named by sample index;
+* **static magnitudes**, on the quiet blocks of :data:`BLOCK_S` seconds (accel and gyro scatter both at most
+  twice their median over the recording): the accelerometer norm against local gravity (ratio within
+  :data:`ACCEL_NORM_RATIO`) and the gyro magnitude against the Earth's rate (at most
+  :data:`GYRO_STATIC_MAX_DEG_S` deg/s; and not far below 15.04 deg/h when the sensor is quiet enough to see
+  it). A failure names the likely mistake: m s-2 declared as g or the reverse, rad/s declared as deg/s or
+  the reverse, rates declared as increments or the reverse, raw counts declared as a physical unit, or
+  physical data declared as counts.
+
+Count recordings carry no physical scale, so only the last mistake is looked for there. The result checks
+(:func:`check_triad_result`, :func:`check_finite_result`) apply the same idea to calibrations and navigation
+solutions: scale factors within :data:`SCALE_RANGE` for physical units (a count triad: its three scale
+factors within a factor :data:`SCALE_SPREAD_MAX` of each other), accelerometer bias at most
+:data:`ACCEL_BIAS_MAX_M_S2` m s-2 (0.2 g), gyro bias at most :data:`GYRO_BIAS_MAX_DEG_S` deg/s (consumer
+MEMS gyros, e.g. the MPU-9150 recordings of ``config/import``, show up to 1.3 deg/s), every value finite.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from calib.core import earth
+from calib.core.errors import InputError, ResultCheckError
+from calib.io import recording
+
+ABSURD_ACCEL_G = 1000.0
+ABSURD_GYRO_DEG_S = 1.0e4
+BLOCK_S = 1.0
+ACCEL_NORM_RATIO = (0.5, 2.0)
+GYRO_STATIC_MAX_DEG_S = 10.0
+EARTH_RATE_DEG_H = earth.OMEGA_IE / earth.DEG_PER_H   # 15.041 deg/h, the magnitude any static gyro triad sees
+#: a static gyro magnitude below this fraction of the Earth's rate is refused when the sensor resolves it
+EARTH_RATE_FLOOR = 0.05
+#: ... i.e. when the noise of a block mean is below this fraction of the Earth's rate
+EARTH_RATE_RESOLVED = 0.1
+#: count data whose static norm matches local gravity in m s-2 or in g within this are physical data
+PHYSICAL_MATCH = 0.03
+SCALE_RANGE = (0.5, 2.0)
+SCALE_SPREAD_MAX = 2.0
+ACCEL_BIAS_MAX_M_S2 = 2.0
+GYRO_BIAS_MAX_DEG_S = 10.0
+
+
+@dataclass
+class Plausibility:
+    """What :func:`check_recording` measured (declared units) and any refusals turned into warnings."""
+
+    path: str
+    n_quiet_blocks: int = 0
+    accel_static_norm: float | None = None
+    accel_expected: float | None = None
+    accel_units: str = ""
+    gyro_static_deg_h: float | None = None
+    warnings: list = field(default_factory=list)
+
+    def describe(self) -> str:
+        parts = []
+        if self.accel_static_norm is not None:
+            parts.append(f"static accel norm {self.accel_static_norm:.6g} {self.accel_units} (local gravity "
+                         f"{self.accel_expected:.6g})")
+        if self.gyro_static_deg_h is not None:
+            parts.append(f"static gyro magnitude {self.gyro_static_deg_h:.4g} deg/h (Earth rate "
+                         f"{EARTH_RATE_DEG_H:.2f} deg/h)")
+        if not parts:
+            return "no physical magnitude check (count units or no quiet blocks)"
+        return "; ".join(parts) + f" over {self.n_quiet_blocks} quiet {BLOCK_S:g} s blocks"
+
+
+def _per_sample_factor(h, sensor):
+    """Factor from a raw sample to an SI rate (m s-2 or rad s-1); None for counts."""
+    units = h.accel_units if sensor == "accel" else h.gyro_units
+    kind = h.accel_kind if sensor == "accel" else h.gyro_kind
+    f = recording.unit_factor(units)
+    if f is None:
+        return None
+    return f * (h.sample_rate_hz if kind == "increment" else 1.0)
+
+
+def _raw_rate_factor(h, sensor):
+    """Factor from a raw sample to a raw rate (per second): the sample rate for increments, else 1."""
+    kind = h.accel_kind if sensor == "accel" else h.gyro_kind
+    return h.sample_rate_hz if kind == "increment" else 1.0
+
+
+class _Blocks:
+    """Means and scatter of consecutive blocks of ``w`` samples, accumulated chunk by chunk."""
+
+    def __init__(self, w):
+        self.w = w
+        self.mean, self.sd = [], []
+
+    def add(self, x):
+        k = (len(x) // self.w) * self.w
+        if k == 0:
+            return
+        b = x[:k].reshape(-1, self.w, 3)
+        self.mean.append(b.mean(axis=1))
+        self.sd.append(np.linalg.norm(b.std(axis=1), axis=1))
+
+    def arrays(self):
+        if not self.mean:
+            return np.zeros((0, 3)), np.zeros(0)
+        return np.concatenate(self.mean), np.concatenate(self.sd)
+
+
+def check_recording(path, header=None, *, force: bool = False) -> Plausibility:
+    """Refuse (:class:`calib.core.errors.InputError`, exit 2) a recording whose samples are implausible for
+    its declared units; ``force``: record the refusals in ``warnings`` instead. One pass over the samples; the
+    static magnitudes are judged first, so that a unit mistake is named as such rather than as spikes."""
+    h = header or recording.read_header(path)
+    res = Plausibility(str(path), accel_units=h.accel_units)
+
+    def refuse(field_, message, fix):
+        if not force:
+            raise InputError(message, file=path, field=field_, fix=fix)
+        res.warnings.append(f"{path}: {field_}: {message}")
+
+    fa, fg = _per_sample_factor(h, "accel"), _per_sample_factor(h, "gyro")
+    ra = _raw_rate_factor(h, "accel")
+    w = max(8, int(round(h.sample_rate_hz * BLOCK_S)))
+    blocks_a, blocks_g = _Blocks(w), _Blocks(w)
+    absurd = {"accel": _Absurd(ABSURD_ACCEL_G, "g", h.accel_units), "gyro": _Absurd(ABSURD_GYRO_DEG_S, "deg/s",
+                                                                                     h.gyro_units)}
+    integer_accel = True
+    with np.errstate(over="ignore", invalid="ignore"):   # overflowing samples are absurd samples, judged below
+        for i0, acc, gyr in recording.iter_raw_chunks(path, h):
+            a = acc * fa if fa is not None else acc * ra
+            g = gyr * fg if fg is not None else gyr
+            if fa is not None:
+                absurd["accel"].add(np.linalg.norm(a, axis=1) / earth.STANDARD_GRAVITY, i0)
+            if fg is not None:
+                absurd["gyro"].add(np.linalg.norm(g, axis=1) / earth.DEG, i0)
+            integer_accel = integer_accel and bool(np.all(acc == np.round(acc)))
+            blocks_a.add(a)
+            blocks_g.add(g)
+    am, asd = blocks_a.arrays()
+    gm, gsd = blocks_g.arrays()
+    quiet = np.zeros(len(am), dtype=bool)
+    if len(am):
+        ok = np.isfinite(asd) & np.isfinite(gsd) & np.all(np.isfinite(am), axis=1) & np.all(np.isfinite(gm), axis=1)
+        if ok.any():
+            quiet = (ok & (asd <= max(2.0 * float(np.median(asd[ok])), 1e-300))
+                     & (gsd <= max(2.0 * float(np.median(gsd[ok])), 1e-300)))
+    else:
+        res.warnings.append(f"{path}: shorter than one {BLOCK_S:g} s block: magnitudes not checked")
+    res.n_quiet_blocks = int(quiet.sum())
+    if quiet.any():
+        a_norm = float(np.median(np.linalg.norm(am[quiet], axis=1)))
+        if fa is not None:
+            _accel_physical(refuse, res, h, a_norm, fa)
+        elif not integer_accel:
+            _accel_counts(refuse, h, a_norm, ra)
+        if fg is not None:
+            mags = np.linalg.norm(gm[quiet], axis=1)
+            g_static = float(np.percentile(mags, 10))
+            noise = float(np.median(gsd[quiet])) / math.sqrt(w)
+            res.gyro_static_deg_h = g_static / earth.DEG_PER_H
+            _gyro_physical(refuse, h, g_static, noise)
+    for sensor, ab in absurd.items():
+        ab.judge(refuse, sensor)
+    return res
+
+
+class _Absurd:
+    """First and number of samples whose magnitude exceeds ``limit`` (in ``unit``)."""
+
+    def __init__(self, limit, unit, declared):
+        self.limit, self.unit, self.declared = limit, unit, declared
+        self.first, self.value, self.count = None, None, 0
+
+    def add(self, mag, i0):
+        bad = ~(mag <= self.limit)
+        if bad.any():
+            if self.first is None:
+                i = int(np.argmax(bad))
+                self.first, self.value = i0 + i, float(mag[i])
+            self.count += int(bad.sum())
+
+    def judge(self, refuse, sensor):
+        if self.first is not None:
+            refuse(sensor, f"sample {self.first}: magnitude {self.value:.4g} {self.unit} exceeds {self.limit:g} "
+                   f"{self.unit} ({self.count} such sample(s)): a spike, or not {self.declared!r}",
+                   f"remove the spike at the source, or declare the right units for {sensor}")
+
+
+def _likely(ratio, candidates):
+    """The candidate mistake whose factor is nearest ``ratio`` (within 30 %), or None."""
+    best = min(candidates, key=lambda c: abs(math.log(ratio / c[0])), default=None)
+    if best is not None and abs(math.log(ratio / best[0])) < math.log(1.3):
+        return best[1]
+    return None
+
+
+def _accel_physical(refuse, res, h, a_norm_si, fa):
+    g = h.gravity_m_s2
+    ratio = a_norm_si / g
+    units, kind, fs = h.accel_units, h.accel_kind, h.sample_rate_hz
+    res.accel_static_norm = a_norm_si / fa   # in the declared units (per sample for increments)
+    res.accel_expected = g / fa
+    lo, hi = ACCEL_NORM_RATIO
+    if lo <= ratio <= hi:
+        return
+    cands = []
+    if units == "g":
+        cands.append((earth.STANDARD_GRAVITY, "data in m s-2 declared as 'g'"))
+    if units in ("m s-2",):
+        cands.append((1.0 / earth.STANDARD_GRAVITY, "data in g declared as 'm s-2'"))
+    if kind == "increment":
+        cands.append((fs, "rates (m s-2) declared as sample_kind 'increment'"))
+    else:
+        cands.append((1.0 / fs, "increments (m s-1 per sample) declared as sample_kind 'rate'"))
+    mistake = _likely(ratio, cands) or ("raw counts declared as a physical unit" if ratio > hi else
+                                        "a scale or unit mistake")
+    refuse("accel", f"static accelerometer norm {res.accel_static_norm:.5g} {units} but local gravity is "
+           f"{res.accel_expected:.5g} {units} (ratio {ratio:.4g}, allowed {lo:g}..{hi:g}): likely {mistake}",
+           "declare the accelerometer's real units and sample_kind in the import settings (accel.units, "
+           "accel.sample_kind; 'count' for raw counts)")
+
+
+def _accel_counts(refuse, h, a_norm_raw_rate, ra):
+    g = h.gravity_m_s2
+    per_sample = a_norm_raw_rate / ra
+    for value, what in ((a_norm_raw_rate, "rate"), (per_sample, "per sample")):
+        for ref, unit in ((g, "m s-2"), (g / earth.STANDARD_GRAVITY, "g")):
+            if abs(value / ref - 1.0) < PHYSICAL_MATCH:
+                refuse("accel", f"declared 'count' but the static norm ({what}) is {value:.5g}, local gravity in "
+                       f"{unit}, and the samples are not integers: likely physical data ({unit}) declared as "
+                       "counts", f"declare accel.units: {unit} in the import settings")
+                return
+
+
+def _gyro_physical(refuse, h, g_static, noise):
+    deg_s = g_static / earth.DEG
+    units, kind = h.gyro_units, h.gyro_kind
+    if deg_s > GYRO_STATIC_MAX_DEG_S:
+        possible = []
+        if units in ("rad s-1", "rad"):
+            possible.append("data in degrees declared as radians")
+        if units == "deg s-1":
+            possible.append("data in deg/h declared as 'deg s-1'")
+        if kind == "increment":
+            possible.append("rates declared as sample_kind 'increment'")
+        possible.append("raw counts declared as a physical unit")
+        refuse("gyro", f"static gyro magnitude {deg_s:.4g} deg/s (declared {units!r}) on the quietest blocks; no "
+               f"gyro at rest reads more than {GYRO_STATIC_MAX_DEG_S:g} deg/s: likely {' or '.join(possible)}",
+               "declare the gyro's real units and sample_kind in the import settings (gyro.units, "
+               "gyro.sample_kind; 'count' for raw counts), or pass --force for a recording without rests")
+        return
+    earth_rate = earth.OMEGA_IE
+    if g_static < EARTH_RATE_FLOOR * earth_rate and noise < EARTH_RATE_RESOLVED * earth_rate:
+        mistake = ("data in rad/s declared as degrees" if units in ("deg s-1", "deg") else
+                   "data in rad/s declared as 'deg h-1'" if units == "deg h-1" else
+                   "increments declared as sample_kind 'rate'" if kind == "rate" else "a dead or clipped gyro")
+        refuse("gyro", f"static gyro magnitude {g_static / earth.DEG_PER_H:.3g} deg/h is far below the Earth's rate "
+               f"({EARTH_RATE_DEG_H:.2f} deg/h) that a gyro this quiet (block noise "
+               f"{noise / earth.DEG_PER_H:.3g} deg/h) sees at rest: likely {mistake}",
+               "declare the gyro's real units and sample_kind in the import settings (gyro.units, gyro.sample_kind)")
+
+
+# =========================================================================== results
+
+
+def check_triad_result(sensor: str, scale, bias_si, *, counts: bool, scale_names=None) -> list[str]:
+    """Problems of one calibrated triad: ``scale`` (3) input per output unit for physical units, any positive
+    scale for counts; ``bias_si`` (3) in m s-2 or rad s-1 (None: not checked, e.g. an ADC offset in counts).
+    Returns the problems as sentences (empty: plausible)."""
+    scale = np.asarray(scale, dtype=float)
+    names = scale_names or ("x", "y", "z")
+    out = []
+    if not np.all(np.isfinite(scale)):
+        out.append(f"{sensor} scale factors not finite ({scale.tolist()})")
+    elif counts:
+        a = np.abs(scale)
+        if a.min() <= 0 or a.max() / a.min() > SCALE_SPREAD_MAX:
+            out.append(f"{sensor} scale factors {', '.join(f'{v:.5g}' for v in scale)} differ by more than a factor "
+                       f"{SCALE_SPREAD_MAX:g} between axes")
+    else:
+        lo, hi = SCALE_RANGE
+        for n, v in zip(names, scale):
+            if not lo <= abs(v) <= hi:
+                out.append(f"{sensor} scale factor {n} = {v:.5g} outside [{lo:g}, {hi:g}] for physical units")
+    if bias_si is not None:
+        b = np.asarray(bias_si, dtype=float)
+        if sensor == "accel":
+            limit, unit, conv = ACCEL_BIAS_MAX_M_S2, "m s-2", 1.0
+        else:
+            limit, unit, conv = GYRO_BIAS_MAX_DEG_S, "deg/s", 1.0 / earth.DEG
+        if not np.all(np.isfinite(b)):
+            out.append(f"{sensor} biases not finite ({b.tolist()})")
+        elif np.abs(b * conv).max() > limit:
+            out.append(f"{sensor} bias {np.abs(b * conv).max():.4g} {unit} above {limit:g} {unit}")
+    return out
+
+
+def raise_result_problems(problems, file, fix, what="result"):
+    """:class:`calib.core.errors.ResultCheckError` (exit 3) listing ``problems``, if any."""
+    if problems:
+        raise ResultCheckError(f"{what} implausible: " + "; ".join(problems), file=file, fix=fix)
+
+
+def check_finite_result(ds, file, fix, time_name="time"):
+    """:class:`calib.core.errors.ResultCheckError` (exit 3) when a data variable of ``ds`` holds NaN or Inf,
+    naming the first variable and the time of its first bad value."""
+    for name, var in ds.data_vars.items():
+        v = np.asarray(var.values)
+        if v.dtype.kind not in "fc" or np.all(np.isfinite(v)):
+            continue
+        where = ""
+        if time_name in var.dims:
+            bad = ~np.isfinite(v)
+            ax = var.dims.index(time_name)
+            idx = int(np.argmax(np.moveaxis(bad, ax, 0).reshape(bad.shape[ax], -1).any(axis=1)))
+            where = f" from {time_name} = {float(ds[time_name].values[idx]):.6g}"
+        raise ResultCheckError(f"non-finite values in '{name}'{where}", file=file, fix=fix)
+
+
+def check_calibration_file(path) -> dict:
+    """A ``default_calibration.nc`` of the calibrate stage as input (``calib navigate --calibration``): the
+    paper vectors ``accel`` and ``gyro`` (12 finite parameters each on ``parameter``). A recording, a field
+    calibration or any other file is refused (:class:`calib.core.errors.InputError`). Returns the vectors."""
+    fix = "give the default_calibration.nc written by 'calib calibrate --out DIR'"
+    try:
+        with xr.open_dataset(path, engine="netcdf4") as d:
+            kind = ("a recording" if d.attrs.get("conventions") == recording.CONVENTIONS else
+                    "a field calibration ('calib fieldcal --out')" if "value" in d and "static_intervals" in d else
+                    None)
+            vecs = {s: np.asarray(d[s].values) for s in ("accel", "gyro") if s in d and d[s].dims == ("parameter",)}
+    except Exception as exc:  # noqa: BLE001 - whatever the netCDF library raises, it is not a calibration file
+        raise InputError(f"not a netCDF calibration file ({type(exc).__name__})", file=path, fix=fix) from None
+    if kind or set(vecs) != {"accel", "gyro"}:
+        raise InputError(f"is {kind or 'not a calibration of the calibrate stage'} (needs accel(parameter) and "
+                         "gyro(parameter))", file=path, fix=fix)
+    for s, v in vecs.items():
+        if v.shape != (12,) or not np.all(np.isfinite(v)):
+            raise InputError(f"'{s}' needs 12 finite parameters (K, E, b), has shape {v.shape}"
+                             f"{'' if np.all(np.isfinite(v)) else ' with NaN/Inf'}", file=path, field=s, fix=fix)
+    return vecs
+
+
+def check_calibration_result(nc_path, json_path=None) -> None:
+    """The default calibration of the calibrate stage (``K E b`` per triad, inputs in g and deg/h): the biases
+    ``b / K`` against the limits, the scale factors' spread between axes (their unit is output per g or per
+    deg/h, whatever the recording's units), and no parameter pinned on its search bound (``on_bound`` of
+    ``default_calibration.json``: the optimum lies outside Liu 2021's Tables 1/3).
+    :class:`calib.core.errors.ResultCheckError` (exit 3) if implausible."""
+    with xr.open_dataset(nc_path, engine="netcdf4") as d:
+        vecs = {s: np.asarray(d[s].values, dtype=float) for s in ("accel", "gyro") if s in d}
+    problems = []
+    for sensor, v in vecs.items():
+        K, b = v[0:3], v[9:12]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bias = b / K * (earth.STANDARD_GRAVITY if sensor == "accel" else earth.DEG_PER_H)
+        problems += check_triad_result(sensor, K, bias, counts=True)
+    json_path = Path(nc_path).with_suffix(".json") if json_path is None else Path(json_path)
+    if json_path.exists():
+        summary = json.loads(json_path.read_text())
+        for sensor in ("accel", "gyro"):
+            hits = (summary.get(sensor) or {}).get("on_bound") or []
+            if hits:
+                problems.append(f"{sensor} parameter(s) {', '.join(hits)} on the search bounds of Liu 2021 Tables 1/3 "
+                                "(the optimum lies outside them)")
+    raise_result_problems(problems, nc_path, "check the recording's units and segment table (the bounds fit the Liu "
+                          "2021 unit); the fit is set by calibration.default_method, calibration.NP and "
+                          "calibration.EG in --config", "calibration")
+
+
+def check_fieldcal_result(res, accel_counts: bool, gyro_counts: bool, where) -> None:
+    """A field calibration (:class:`calib.fieldcal.FieldCalResult`: ``accel`` / ``gyro`` fits with
+    ``scale_factors`` and ``bias`` in SI for physical units) against the limits; biases of count triads are ADC
+    offsets and not checked. :class:`calib.core.errors.ResultCheckError` (exit 3) if implausible."""
+    problems = []
+    for sensor, fit, counts in (("accel", res.accel, accel_counts), ("gyro", res.gyro, gyro_counts)):
+        if fit is not None:
+            problems += check_triad_result(sensor, fit.scale_factors, None if counts else fit.bias, counts=counts)
+    raise_result_problems(problems, where, "check the recording's declared units; the static intervals are chosen "
+                          "by the settings keys detection.rule / detection.threshold, gravity by gravity_m_s2, the "
+                          "gyro offset by gyro.bias", "field calibration")

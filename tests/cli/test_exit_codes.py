@@ -1,0 +1,133 @@
+"""The exit-code contract of ``calib`` (calib.core.errors.EXIT_CODES): documented in ``calib --help`` and the
+README, and kept by every outcome -- success 0, the diagnosis verdicts 0/1/3, usage and input errors 2, an
+internal error 70 with its traceback in a log file, SIGINT 130 and SIGTERM 143 with no partial file left."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from calib import cli
+from calib.core import errors
+from calib.sim import simulator
+
+ROOT = Path(__file__).resolve().parents[2]
+SMALL_CONFIG = ROOT / ".test" / "config.yaml"
+SHORT_SESSION = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
+CONTRACT = {0, 1, 2, 3, 70, 130, 143}
+
+
+def calib(*argv, **kw):
+    """``calib ARGV`` in a fresh interpreter (what a user's terminal shows)."""
+    return subprocess.run([sys.executable, "-m", "calib.cli", *map(str, argv)], capture_output=True, text=True,
+                          cwd=kw.pop("cwd", ROOT), timeout=kw.pop("timeout", 120), **kw)
+
+
+def test_contract_is_documented_in_help_and_readme(capsys):
+    assert {code for code, _ in errors.EXIT_CODES} == CONTRACT
+    assert (errors.EXIT_SIGINT, errors.EXIT_SIGTERM) == (128 + signal.SIGINT, 128 + signal.SIGTERM)
+    with pytest.raises(SystemExit) as ei:
+        cli.main(["--help"])
+    assert ei.value.code == 0
+    help_text = capsys.readouterr().out
+    epilog = help_text[help_text.index("exit codes:"):]
+    assert {int(m) for m in re.findall(r"^\s+(\d+)\s", epilog, re.M)} == CONTRACT
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("### Exit codes"):]
+    section = section[:section.index("\n## ")]
+    rows = re.findall(r"^\| ([\d /]+) \|", section, re.M)
+    assert {int(c) for r in rows for c in r.split("/")} == CONTRACT
+
+
+def test_argparse_usage_errors_stay_2(capsys):
+    for argv in (["navigate"], ["simulate", "nonsense", "x.nc"], ["validate", "a.nc", "--hours", "1"], []):
+        with pytest.raises(SystemExit) as ei:
+            cli.main(argv)
+        assert ei.value.code == 2
+    assert "usage: calib" in capsys.readouterr().err
+
+
+def test_success_is_0(tmp_path, capsys):
+    out = tmp_path / "nav.nc"
+    assert cli.main(["simulate", "navigation", str(out), "--config", str(SMALL_CONFIG), "--hours", "0.005"]) == 0
+    assert cli.main(["validate", str(out)]) == 0
+    assert cli.main(["navigate", str(out), "--out", str(tmp_path / "errors.nc")]) == 0
+    assert "plausible: static accel norm" in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["errors.nc", "nav.nc", "nav.truth.json"]
+
+
+def test_diagnose_verdicts_map_to_0_and_3(tmp_path, capsys):
+    settings = tmp_path / "s.json"
+    settings.write_text(json.dumps({"figures": False}))
+    clean = simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "clean.nc")
+    assert cli.main(["diagnose", str(clean), "--out", str(tmp_path / "d0"), "--settings", str(settings)]) == 0
+    few = simulator.simulate_calibration_session({**SHORT_SESSION, "positions_per_phase": 1, "step_deg": 90.0}, 1,
+                                                 tmp_path / "few.nc")
+    assert cli.main(["diagnose", str(few), "--out", str(tmp_path / "d3"), "--settings", str(settings)]) == 3
+    verdicts = [json.loads((tmp_path / d / "report.json").read_text())["verdict"] for d in ("d0", "d3")]
+    assert verdicts == ["adequate", "inconclusive"]
+
+
+def test_internal_error_is_one_line_and_a_log_file(tmp_path, capsys, monkeypatch):
+    from calib.studies import stages
+
+    def bug(*a, **k):
+        raise ZeroDivisionError("division by zero inside a stage")
+
+    monkeypatch.setattr(stages, "simulate_navigation", bug)
+    code = cli.main(["simulate", "navigation", str(tmp_path / "x.nc"), "--config", str(SMALL_CONFIG),
+                     "--hours", "0.005"])
+    err = capsys.readouterr().err
+    assert code == 70
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert "calib simulate: internal error: ZeroDivisionError: division by zero inside a stage" in err
+    log = Path(re.search(r"traceback in (\S+?);", err).group(1))
+    try:
+        text = log.read_text()
+        assert "Traceback (most recent call last)" in text and "in bug" in text
+    finally:
+        log.unlink()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_user_errors_print_no_traceback_on_the_terminal(tmp_path):
+    """In a fresh interpreter: a folder given as a recording, --nav-rate 0, a missing config."""
+    r = calib("validate", tmp_path)
+    assert r.returncode == 2 and "is a folder" in r.stderr and "Traceback" not in r.stderr
+    r = calib("navigate", tmp_path / "x.nc", "--out", tmp_path / "o.nc", "--nav-rate", "0")
+    assert r.returncode == 2 and "--nav-rate must be positive" in r.stderr and "Traceback" not in r.stderr
+    r = calib("simulate", "calibration", tmp_path / "x.nc", cwd=tmp_path)
+    assert r.returncode == 2 and "config file not found" in r.stderr and "Traceback" not in r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
+def test_signals_leave_no_partial_file_and_keep_the_earlier_output(tmp_path, signum, code, name):
+    """A long simulation killed while it writes: the temporary file goes, the earlier output stays."""
+    out = tmp_path / "nav.nc"
+    out.write_bytes(b"earlier good output")
+    proc = subprocess.Popen([sys.executable, "-m", "calib.cli", "simulate", "navigation", str(out), "--config",
+                             str(SMALL_CONFIG), "--hours", "200"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not any(p.name.endswith(".part") for p in tmp_path.iterdir()):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.05)
+        time.sleep(0.3)
+        proc.send_signal(signum)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == code, err
+    assert f"interrupted by {name}" in err and "Traceback" not in err
+    assert out.read_bytes() == b"earlier good output"
+    assert sorted(os.listdir(tmp_path)) == ["nav.nc"]
