@@ -1,7 +1,7 @@
 """Benchmark of calib.fieldcal on the shared real recordings: per-log times and the acceptance
 metrics next to their targets (the peers' published numbers).
 
-Run: .venv/bin/python benchmarks/bench_fieldcal.py [--data ../shared/data]
+Run: .venv/bin/python benchmarks/bench_fieldcal.py [--data DIR]  (default $CALIB_DATA, else ../shared/data)
 """
 from __future__ import annotations
 
@@ -45,7 +45,8 @@ def _line(what, value, target, ok, info=False):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
+    ap.add_argument("--data", default=str(importers.default_data_root()),
+                    help="folder of the shared recordings (default: $CALIB_DATA, else ../shared/data)")
     args = ap.parse_args(argv)
     data = Path(args.data)
     # warm the numba cache so that per-log times are steady-state

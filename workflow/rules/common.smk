@@ -16,10 +16,11 @@ def sub(section):
 
 
 def import_settings():
-    """Importer settings of a real-recording study (data_dir resolved against the settings file)."""
+    """Importer settings of a real-recording study (data_dir resolved against the settings file; without it the
+    files are under the config's optional data_root, else $CALIB_DATA, else ../shared/data)."""
     from calib.ingest import importers
 
-    return importers.load_settings(config["recording"]["import"])
+    return importers.load_settings(config["recording"]["import"], data_root=config.get("data_root"))
 
 
 def all_targets():

@@ -125,7 +125,8 @@ class CalibrationResult:
         return ob.paper_vector(M, self.b), R
 
     def model(self) -> TriadModel:
-        return TriadModel.from_vector(self.paper_vector(), self.input_unit, self.output_unit)
+        """The identified model as the one triad model of :mod:`calib.core.triad` (K = diag(K E), unit-diagonal E)."""
+        return TriadModel.from_KE(self.KE, self.b, self.input_unit, self.output_unit)
 
     @property
     def how_to_apply(self) -> str:

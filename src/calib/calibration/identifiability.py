@@ -8,6 +8,9 @@ its search bounds, Liu 2021 Tables 1 and 3), J_s = J diag(s), and
 
 A null-space direction v (scaled coordinates) corresponds to the parameter change delta theta = s * v that
 leaves every residual unchanged: those combinations are not determined by the data, whatever the noise.
+Without typical sizes each column is divided by its norm (:func:`column_scaled`); :func:`rank_summary` gives rank,
+condition and the weakest direction of such a Jacobian (the field calibration's check). Both reports rest on the
+one SVD, :func:`singular_spectrum`.
 
 Known null spaces, named here in parameter terms:
 
@@ -94,6 +97,16 @@ def _describe(v_scaled, scale, names, tol=0.05):
     return "delta " + " ".join(parts)
 
 
+def column_scaled(J, scale=None):
+    """The Jacobian ``J`` (n, p) with its columns scaled: J diag(s) for typical parameter sizes ``scale`` (p,),
+    or, without them, each column divided by its norm (all-zero columns kept as they are)."""
+    J = np.asarray(J, dtype=float)
+    if scale is None:
+        norms = np.linalg.norm(J, axis=0)
+        return J / np.where(norms > 0, norms, 1.0)
+    return J * np.asarray(scale, dtype=float)[None, :]
+
+
 def singular_spectrum(Js):
     """The one identifiability SVD: singular values (p,) of a column-scaled Jacobian ``Js`` (n, p), padded with
     zeros when n < p (directions the observations cannot see at all), and the right singular vectors Vt (p, p).
@@ -103,6 +116,48 @@ def singular_spectrum(Js):
     Sfull = np.zeros(Js.shape[1])
     Sfull[: len(S)] = S
     return Sfull, Vt
+
+
+@dataclass
+class RankSummary:
+    """Rank, condition and weakest direction of a Jacobian whose columns are divided by their norms.
+
+    ``singular_values`` are relative to the largest (descending). ``weakest`` maps each parameter name to its
+    component in the right singular vector of the smallest singular value (sign: largest component positive).
+    """
+
+    n_params: int
+    rank: int
+    singular_values: np.ndarray
+    condition: float
+    weakest: dict
+    rtol: float
+    based_on: str
+
+    def as_dict(self) -> dict:
+        top = sorted(self.weakest.items(), key=lambda kv: -abs(kv[1]))
+        return {"n_params": self.n_params, "rank": self.rank, "condition": self.condition, "rtol": self.rtol,
+                "singular_values_rel": [float(s) for s in self.singular_values],
+                "weakest_direction": {k: round(float(v), 4) for k, v in top if abs(v) >= 0.05},
+                "based_on": self.based_on}
+
+    def describe(self) -> str:
+        w = ", ".join(f"{v:+.2f} {k}" for k, v in sorted(self.weakest.items(), key=lambda kv: -abs(kv[1]))
+                      if abs(v) >= 0.2)
+        return (f"rank {self.rank} of {self.n_params} (rtol {self.rtol:g}; condition {self.condition:.3g}); "
+                f"weakest direction {w} (relative singular value {self.singular_values[-1]:.3g})")
+
+
+def rank_summary(jac, names, rtol: float = 1e-6, based_on: str = "") -> RankSummary:
+    """:class:`RankSummary` of the Jacobian ``jac`` (rows = observations, one column per name in ``names``):
+    columns divided by their norms (:func:`column_scaled`), then :func:`singular_spectrum`; rank = number of
+    relative singular values above ``rtol``."""
+    s_full, vt = singular_spectrum(column_scaled(jac))
+    rel = s_full / s_full[0] if s_full[0] > 0 else s_full
+    rank = int(np.sum(rel > rtol))
+    weakest = vt[-1] * (1.0 if vt[-1][np.argmax(np.abs(vt[-1]))] > 0 else -1.0)
+    cond = float(s_full[0] / s_full[-1]) if s_full[-1] > 0 else math.inf
+    return RankSummary(len(names), rank, rel, cond, dict(zip(names, weakest.tolist())), rtol, based_on)
 
 
 def analyze_jacobian(J, names, scale=None, *, rtol: float = 1e-8, tol_param: float = 1e-2, generators=None,
@@ -115,7 +170,7 @@ def analyze_jacobian(J, names, scale=None, *, rtol: float = 1e-8, tol_param: flo
     J = np.asarray(J, dtype=float)
     p = J.shape[1]
     s = np.ones(p) if scale is None else np.asarray(scale, dtype=float)
-    Sfull, Vt = singular_spectrum(J * s[None, :])
+    Sfull, Vt = singular_spectrum(column_scaled(J, s))
     smax = Sfull.max() if Sfull.size else 0.0
     rank = int(np.sum(Sfull > rtol * smax)) if smax > 0 else 0
     Vn = Vt[rank:].T  # (p, k) scaled coordinates

@@ -45,17 +45,19 @@ Residuals and statistics
 * standard errors: ``sigma^2 (J^T J)^-1`` with ``sigma^2 = SSR / (m - p)``. Samples within one static
   interval share its orientation error, so for the accel the per-sample covariance is optimistic; the
   per-interval scatter is the honest noise level (both are reported).
-* identifiability: SVD of the column-scaled Jacobian (each column divided by its norm). For the accel it
-  is evaluated on the interval *means* (one row per interval), so that sample noise cannot lend rank to
-  orientations that were never visited. Rank = number of singular values above ``rank_rtol`` x the
+* identifiability: SVD of the column-scaled Jacobian (each column divided by its norm), by
+  :func:`calib.calibration.identifiability.rank_summary`, the same SVD as the turntable calibration's. For the
+  accel it is evaluated on the interval *means* (one row per interval), so that sample noise cannot lend rank
+  to orientations that were never visited. Rank = number of singular values above ``rank_rtol`` x the
   largest; the weakest direction is the right singular vector of the smallest one.
 
 Modules: ``results`` (result objects, names, settings keys), ``accelerometer`` (gravity norm), ``intervals``
 (which static intervals and samples), ``gyroscope`` (gravity directions), ``ferraris`` (labelled sessions),
-``session`` (a whole recording). Public API, re-exported here: :func:`fieldcal_recording` (workflow), :func:`fit_accel_norm`, :func:`fit_gyro_directions`,
-:func:`fit_ferraris`, :func:`imu_tk_intervals`, :func:`imu_tk_accel_search`, :func:`mikoff_standstill`,
-:func:`norm_residual_rms`, and the result classes :class:`FieldCalResult`, :class:`TriadFit`,
-:class:`Identifiability`.
+``session`` (a whole recording). Public API, re-exported here: :func:`fieldcal_recording` (workflow),
+:func:`fit_accel_norm`, :func:`fit_gyro_directions`, :func:`fit_ferraris`, :func:`imu_tk_intervals`,
+:func:`imu_tk_accel_search`, :func:`mikoff_standstill`, :func:`norm_residual_rms`, and the result classes
+:class:`FieldCalResult` and :class:`TriadFit` (whose :meth:`TriadFit.model` is the fit as a
+:class:`calib.core.triad.TriadModel`).
 """
 from calib.fieldcal.results import (  # noqa: F401
     ACCEL_NAMES,
@@ -70,12 +72,10 @@ from calib.fieldcal.results import (  # noqa: F401
     GYRO_KEYS,
     GYRO_NAMES,
     IMU_TK_DEFAULTS,
-    Identifiability,
     MIN_INTERVALS,
     RECOMMENDED_INTERVALS,
     SETTINGS_KEYS,
     TriadFit,
-    identifiability,
     input_label,
     scale_factor_units,
 )

@@ -9,7 +9,16 @@ from scipy.optimize import least_squares
 
 from calib.calibration.ellipsoid import fit_ellipsoid
 from calib.signal import detect
-from calib.fieldcal.results import ACCEL_NAMES, FieldCalError, MIN_INTERVALS, RECOMMENDED_INTERVALS, TriadFit, identifiability, input_label, scale_factor_units
+from calib.calibration.identifiability import rank_summary
+from calib.fieldcal.results import (
+    ACCEL_NAMES,
+    FieldCalError,
+    MIN_INTERVALS,
+    RECOMMENDED_INTERVALS,
+    TriadFit,
+    input_label,
+    scale_factor_units,
+)
 
 # =========================================================================== models
 
@@ -161,7 +170,7 @@ def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: in
     dof = max(m - k, 1)
     sigma2 = float(r @ r) / dof
     cov = sigma2 * np.linalg.pinv(J.T @ J)
-    ident = identifiability(accel_jacobian(p, means, gravity), ACCEL_NAMES, rank_rtol,
+    ident = rank_summary(accel_jacobian(p, means, gravity), ACCEL_NAMES, rank_rtol,
                             based_on=f"interval means ({len(iv)} rows)")
     if ident.rank < 9:
         notes.append(f"norm model not fully identified: {ident.describe()}")

@@ -7,7 +7,15 @@ import re
 
 import numpy as np
 
-from calib.fieldcal.results import BIAS_NAMES, FERRARIS_M_NAMES, FieldCalError, TriadFit, identifiability, input_label, scale_factor_units
+from calib.calibration.identifiability import rank_summary
+from calib.fieldcal.results import (
+    BIAS_NAMES,
+    FERRARIS_M_NAMES,
+    FieldCalError,
+    TriadFit,
+    input_label,
+    scale_factor_units,
+)
 
 # =========================================================================== Ferraris (labelled sessions)
 
@@ -59,7 +67,7 @@ def fit_ferraris(accel, gyro, fs: float, statics: dict, turns: list, gravity: fl
     C = np.linalg.inv(M)
     sf = np.linalg.norm(M, axis=1)
     sf_std = np.full(3, math.sqrt(sigma2 / (2.0 * gravity ** 2)))
-    ident = identifiability(F, ("f_x", "f_y", "f_z", "1"), based_on="Ferraris design (six labelled positions)")
+    ident = rank_summary(F, ("f_x", "f_y", "f_z", "1"), based_on="Ferraris design (six labelled positions)")
     # the full linear least squares (b = mean of the six) for comparison: sensitive to placement tilt
     X_ls, *_ = np.linalg.lstsq(F, Nm, rcond=None)
     b_ls = X_ls[3]

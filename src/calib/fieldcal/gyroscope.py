@@ -10,7 +10,16 @@ from scipy.optimize import least_squares
 
 from calib.signal import detect
 from calib.fieldcal.accelerometer import misalignment_matrix
-from calib.fieldcal.results import BIAS_NAMES, FieldCalError, FieldCalResult, GYRO_NAMES, TriadFit, identifiability, input_label, scale_factor_units
+from calib.calibration.identifiability import rank_summary
+from calib.fieldcal.results import (
+    BIAS_NAMES,
+    FieldCalError,
+    FieldCalResult,
+    GYRO_NAMES,
+    TriadFit,
+    input_label,
+    scale_factor_units,
+)
 
 # =========================================================================== gyroscope: gravity directions
 
@@ -125,7 +134,7 @@ def gyro_static_regression(gyro, accel_calibrated, intervals, rank_rtol: float =
     gm = np.array([gyro[a:b].mean(axis=0) for a, b in iv])
     am = np.array([accel_calibrated[a:b].mean(axis=0) for a, b in iv])
     X = np.column_stack([np.ones(len(am)), am])
-    ident = identifiability(X, ("1", "a_x", "a_y", "a_z"), rank_rtol, based_on="static means design [1, a]")
+    ident = rank_summary(X, ("1", "a_x", "a_y", "a_z"), rank_rtol, based_on="static means design [1, a]")
     coef, *_ = np.linalg.lstsq(X, gm, rcond=None)  # (4, 3): column j = [b_j, G_j,:]
     res = gm - X @ coef
     dof = max(len(gm) - 4, 1)
@@ -207,7 +216,7 @@ def fit_gyro_directions(gyro, accel_calibrated, intervals, dt, *, bias, g_sensit
     A = np.diag(np.concatenate([np.ones(6), np.full(3, g0), np.full(nb, 1.0 / g0)]))
     cov_fit = A @ cov_int @ A.T
     fit_names = GYRO_NAMES + (BIAS_NAMES if nb else ())
-    ident = identifiability(J, fit_names, rank_rtol, based_on=f"gravity-direction residuals ({prob.n_pairs} motions)")
+    ident = rank_summary(J, fit_names, rank_rtol, based_on=f"gravity-direction residuals ({prob.n_pairs} motions)")
     if ident.rank < len(fit_names):
         notes.append(f"gyro model not fully identified: {ident.describe()}")
     # parameter vector: the direction fit, then the offsets (bias always; G when g-sensitive)

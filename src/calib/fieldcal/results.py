@@ -1,15 +1,15 @@
 """Result objects of the field calibration: one triad's fit (:class:`TriadFit`), the session's result
-(:class:`FieldCalResult`), the identifiability report, the settings keys and names."""
+(:class:`FieldCalResult`), the settings keys and names. The identifiability of each fit is a
+:class:`calib.calibration.identifiability.RankSummary`."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import xarray as xr
 
 from calib.core.triad import TriadModel
-from calib.calibration.identifiability import singular_spectrum
+from calib.calibration.identifiability import RankSummary
 
 
 ACCEL_NAMES = ("mis_yz", "mis_zy", "mis_zx", "gain_x", "gain_y", "gain_z", "bias_x", "bias_y", "bias_z")
@@ -43,49 +43,6 @@ class FieldCalError(ValueError):
 
 
 @dataclass
-class Identifiability:
-    """SVD of a column-scaled Jacobian: how many parameter combinations the data determine.
-
-    ``singular_values`` are relative to the largest (descending). ``weakest`` maps each parameter name to its
-    component in the right singular vector of the smallest singular value.
-    """
-
-    n_params: int
-    rank: int
-    singular_values: np.ndarray
-    condition: float
-    weakest: dict
-    rtol: float
-    based_on: str
-
-    def as_dict(self) -> dict:
-        top = sorted(self.weakest.items(), key=lambda kv: -abs(kv[1]))
-        return {"n_params": self.n_params, "rank": self.rank, "condition": self.condition, "rtol": self.rtol,
-                "singular_values_rel": [float(s) for s in self.singular_values],
-                "weakest_direction": {k: round(float(v), 4) for k, v in top if abs(v) >= 0.05},
-                "based_on": self.based_on}
-
-    def describe(self) -> str:
-        w = ", ".join(f"{v:+.2f} {k}" for k, v in sorted(self.weakest.items(), key=lambda kv: -abs(kv[1]))
-                      if abs(v) >= 0.2)
-        return (f"rank {self.rank} of {self.n_params} (rtol {self.rtol:g}; condition {self.condition:.3g}); "
-                f"weakest direction {w} (relative singular value {self.singular_values[-1]:.3g})")
-
-
-def identifiability(jac, names, rtol: float = 1e-6, based_on: str = "") -> Identifiability:
-    """Rank, condition and weakest direction of the column-scaled Jacobian ``jac`` (rows = observations)."""
-    jac = np.asarray(jac, dtype=float)
-    norms = np.linalg.norm(jac, axis=0)
-    scaled = jac / np.where(norms > 0, norms, 1.0)
-    s_full, vt = singular_spectrum(scaled)
-    rel = s_full / s_full[0] if s_full[0] > 0 else s_full
-    rank = int(np.sum(rel > rtol))
-    weakest = vt[-1] * (1.0 if vt[-1][np.argmax(np.abs(vt[-1]))] > 0 else -1.0)
-    cond = float(s_full[0] / s_full[-1]) if s_full[-1] > 0 else math.inf
-    return Identifiability(len(names), rank, rel, cond, dict(zip(names, weakest.tolist())), rtol, based_on)
-
-
-@dataclass
 class TriadFit:
     """Calibration of one triad: ``out = matrix @ (input_factor * raw [/ dt] - bias)``.
 
@@ -115,7 +72,7 @@ class TriadFit:
     residual_rms: float
     residual_units: str
     n_residuals: int
-    identifiability: Identifiability | None
+    identifiability: RankSummary | None
     notes: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
     g_sensitivity: np.ndarray | None = None

@@ -16,7 +16,19 @@ from calib.fieldcal.accelerometer import fit_accel_norm, norm_residual_rms
 from calib.fieldcal.ferraris import LABEL_PATTERN, fit_ferraris
 from calib.fieldcal.gyroscope import direction_check, fit_gyro_directions, gyro_static_regression
 from calib.fieldcal.intervals import imu_tk_accel_search, mikoff_standstill
-from calib.fieldcal.results import DETECTION_KEYS_DETECT, DETECTION_KEYS_IMU_TK, EVALUATIONS, FieldCalError, FieldCalResult, GYRO_BIAS_MODES, GYRO_KEYS, IMU_TK_DEFAULTS, MIN_INTERVALS, RECOMMENDED_INTERVALS, SETTINGS_KEYS
+from calib.fieldcal.results import (
+    DETECTION_KEYS_DETECT,
+    DETECTION_KEYS_IMU_TK,
+    EVALUATIONS,
+    FieldCalError,
+    FieldCalResult,
+    GYRO_BIAS_MODES,
+    GYRO_KEYS,
+    IMU_TK_DEFAULTS,
+    MIN_INTERVALS,
+    RECOMMENDED_INTERVALS,
+    SETTINGS_KEYS,
+)
 
 # =========================================================================== recording-level workflow
 

@@ -1,11 +1,11 @@
 """Import recordings made elsewhere into ``calib-recording-1`` (see :mod:`calib.io.recording`).
 
 One module per source format (``imu_tk``, ``imucal``, ``columns``, ``mikoff``, ``npz_columns``), each with
-``import_<format>(settings) -> xarray.Dataset``; shared settings, checks and assembly in ``common``;
-:func:`calib.ingest.importers.import_recording`
-dispatches on ``settings['format']`` and writes atomically with :func:`calib.io.recording.write` (a failed import
-never leaves a file under the output name). Settings are plain dicts, normally read from
-``config/import/*.yaml`` with :func:`load_settings`.
+``import_<format>(settings) -> xarray.Dataset`` and its settings ``KEYS``; shared settings, checks and assembly in
+``common``; the registry :data:`calib.ingest.importers.IMPORTERS` (a new format is one module plus one entry
+there). :func:`import_recording` (re-exported here from ``importers``) dispatches on ``settings['format']`` and
+writes atomically with :func:`calib.io.recording.write` (a failed import never leaves a file under the output
+name). Settings are plain dicts, normally read from ``config/import/*.yaml`` with :func:`load_settings`.
 
 Nothing is guessed: units, sample kind, sample rate, site latitude, axis signs and the sense of hand-made
 turns come from the settings (or the file, where it says so). What *can* be checked against the data is:
@@ -32,9 +32,11 @@ Common to all formats:
 ``latitude_deg`` (required), ``height_m`` (default 0), ``gravity_m_s2`` (optional local gravity, m s-2)
     Site; stored as global attributes. ``site_note``: free text on where the site values come from.
 ``sensor``, ``description``: free text stored as attributes.
-``data_dir``: directory the file names are relative to (default: :func:`default_data_root`, i.e. ``$CALIB_DATA``
-or the shared data folder ``../shared/data`` beside the repository); a relative ``data_dir`` is taken relative to the
+``data_dir``: directory the file names are relative to; a relative ``data_dir`` is taken relative to the
     settings file's directory (:func:`load_settings`) or, for a dict built in code, the working directory.
+    Without it (the shipped settings): the ``data_root`` given to :func:`load_settings` (a workflow config's
+    ``data_root`` key), else ``$CALIB_DATA``, else the shared data folder ``../shared/data`` beside the
+    repository (:func:`default_data_root`).
 ``accel``, ``gyro`` (required): triad declarations, keys
     ``units`` (required; one of :data:`calib.io.recording.UNITS` for the kind), ``sample_kind`` (required:
     ``rate`` | ``increment``), ``columns`` (format dependent), ``scale`` (number or 3 numbers, default 1),
@@ -52,3 +54,8 @@ Per format (see each function for details): ``imu_tk``: ``files: {accel, gyro}``
 ``data_key``, ``columns_key``. ``columns``: ``file``, ``delimiter``, ``header``, ``comment``,
 ``skip_rows``, ``time: {column, units}`` or ``sample_rate_hz``, ``temperature: {column}``.
 """
+from calib.ingest.common import ImportDataError, default_data_root, load_settings
+from calib.ingest.importers import FORMATS, IMPORTERS, import_dataset, import_recording
+
+__all__ = ["FORMATS", "IMPORTERS", "ImportDataError", "default_data_root", "import_dataset", "import_recording",
+           "load_settings"]

@@ -20,6 +20,9 @@ from calib.ingest.common import (
     triad_settings,
 )
 
+#: the settings keys of this format (besides :data:`calib.ingest.common.COMMON_KEYS`)
+KEYS = {"file", "delimiter", "header", "comment", "skip_rows", "time", "sample_rate_hz", "temperature"}
+
 
 def _table_triads(settings, path, names, n_cols):
     out = {}
@@ -42,7 +45,7 @@ def import_columns(settings) -> xr.Dataset:
     optional ``temperature: {column}`` [degC]. Every row must have the header's (or the first row's)
     number of fields.
     """
-    check_keys(settings, "columns")
+    check_keys(settings, "columns", KEYS)
     path = data_file(settings, "file")
     delim = settings.get("delimiter")
     header = bool(settings.get("header", False))

@@ -1,6 +1,6 @@
 """What every importer shares: the settings (keys, data folder, site, triads), reading text tables, the unit
 and structure checks, and the assembly of a ``calib-recording-1`` dataset. See :mod:`calib.ingest` for the
-settings keys of each format."""
+settings keys of each format; each format module declares its own keys (``KEYS``) next to its importer."""
 from __future__ import annotations
 
 import hashlib
@@ -9,23 +9,15 @@ import os
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from calib.core import earth
 from calib.io import recording
 from calib.signal.detect import moving_variance_norm, window_samples
 from calib.io.recording import RecordingError
 
-FORMATS = ("imu_tk", "imucal", "mikoff", "npz_columns", "columns")
-
 COMMON_KEYS = {"format", "latitude_deg", "height_m", "gravity_m_s2", "site_note", "sensor", "description",
                "data_dir", "accel", "gyro", "units_check_tolerance"}
-FORMAT_KEYS = {
-    "imu_tk": {"files", "sample_rate_hz"},
-    "imucal": {"file", "segments_file", "label_column", "sample_column", "sample_rate_hz", "rotation", "labels"},
-    "mikoff": {"file", "sample_rate_hz"},
-    "npz_columns": {"file", "sample_rate_hz", "data_key", "columns_key"},
-    "columns": {"file", "delimiter", "header", "comment", "skip_rows", "time", "sample_rate_hz", "temperature"},
-}
 TRIAD_KEYS = {"units", "sample_kind", "columns", "scale", "sign", "approx_counts_per_g", "approx_zero_count",
               "approx_counts_per_deg_s"}
 ROTATION_KEYS = {"angle_deg", "sign", "rate_deg_s"}
@@ -49,10 +41,12 @@ def serr(settings, key, problem, fix=""):
 # --------------------------------------------------------------------------- settings
 
 
-def load_settings(path) -> dict:
-    """Read an import-settings YAML; relative ``data_dir`` is then resolved against the file's directory."""
-    import yaml
+def load_settings(path, data_root=None) -> dict:
+    """Read an import-settings YAML; relative ``data_dir`` is then resolved against the file's directory.
 
+    ``data_root``: where the named files are when the settings give no ``data_dir`` (a workflow's ``data_root``
+    config key; relative to the working directory); default :func:`default_data_root`.
+    """
     path = Path(path)
     if not path.exists():
         raise ImportDataError(path, "-", "import settings file not found")
@@ -62,11 +56,15 @@ def load_settings(path) -> dict:
         raise ImportDataError(path, "-", "import settings must be a YAML mapping")
     s["_source"] = str(path)
     s["_base_dir"] = str(path.resolve().parent)
+    if data_root is not None and "data_dir" not in s:
+        s["_data_root"] = str(Path(data_root).expanduser().resolve())
     return s
 
 
-def check_keys(settings, fmt):
-    allowed = COMMON_KEYS | FORMAT_KEYS[fmt]
+def check_keys(settings, fmt, format_keys):
+    """Refuse keys that are neither common nor among the ``format_keys`` of format ``fmt`` (its module's ``KEYS``),
+    and triad declarations that are missing or hold unknown keys."""
+    allowed = COMMON_KEYS | set(format_keys)
     for key in settings:
         if key.startswith("_"):
             continue
@@ -85,8 +83,9 @@ def check_keys(settings, fmt):
 
 
 def default_data_root() -> Path:
-    """Where recordings named by import settings without ``data_dir`` are looked for: the environment variable
-    ``CALIB_DATA`` if set, else the shared data folder beside the repository (``<repo>/../shared/data``)."""
+    """Where recordings named by import settings without ``data_dir`` (and loaded without a ``data_root``) are
+    looked for: the environment variable ``CALIB_DATA`` if set, else the shared data folder beside the
+    repository (``<repo>/../shared/data``)."""
     env = os.environ.get("CALIB_DATA")
     if env:
         return Path(env).expanduser()
@@ -96,7 +95,11 @@ def default_data_root() -> Path:
 
 
 def data_dir(settings) -> Path:
+    """The folder the settings' file names are relative to: ``data_dir`` of the settings, else the ``data_root``
+    they were loaded with (:func:`load_settings`), else :func:`default_data_root`."""
     if "data_dir" not in settings:
+        if settings.get("_data_root"):
+            return Path(settings["_data_root"])
         return default_data_root()
     d = Path(settings["data_dir"])
     if not d.is_absolute():

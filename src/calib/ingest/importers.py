@@ -1,7 +1,7 @@
-"""The dispatch: format name -> importer module; :func:`import_recording` imports and writes atomically.
+"""The dispatch: format name -> importer; :func:`import_recording` imports and writes atomically.
 
-A new format is one module with ``import_<format>(settings)`` plus one entry in :data:`IMPORTERS` (and its keys in
-:data:`calib.ingest.common.FORMAT_KEYS`)."""
+A new format is one module (``import_<format>(settings) -> xarray.Dataset`` and its settings ``KEYS``, checked
+with :func:`calib.ingest.common.check_keys`) plus one entry in :data:`IMPORTERS`."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -10,23 +10,24 @@ import xarray as xr
 
 from calib.io import recording
 from calib.io.netcdf import provenance
-from calib.ingest.common import FORMATS, ImportDataError, default_data_root, load_settings, serr  # noqa: F401
+from calib.ingest.common import ImportDataError, default_data_root, load_settings, serr  # noqa: F401
 from calib.ingest.columns import import_columns
 from calib.ingest.imu_tk import import_imu_tk
 from calib.ingest.imucal import import_imucal
 from calib.ingest.mikoff import import_mikoff
 from calib.ingest.npz_columns import import_npz_columns
 
-
+#: format name (the settings' ``format``) -> its importer
 IMPORTERS = {"imu_tk": import_imu_tk, "imucal": import_imucal, "mikoff": import_mikoff,
              "npz_columns": import_npz_columns, "columns": import_columns}
+FORMATS = tuple(IMPORTERS)
 
 
 def import_dataset(settings: dict) -> xr.Dataset:
     """Dispatch on ``settings['format']`` and return the in-memory ``calib-recording-1`` dataset."""
     fmt = settings.get("format")
     if fmt not in IMPORTERS:
-        raise serr(settings, "format", f"value {fmt!r} unknown", f"one of: {', '.join(FORMATS)}")
+        raise serr(settings, "format", f"value {fmt!r} unknown", f"one of: {', '.join(IMPORTERS)}")
     return IMPORTERS[fmt](settings)
 
 

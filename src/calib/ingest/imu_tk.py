@@ -17,6 +17,9 @@ from calib.ingest.common import (
     serr,
 )
 
+#: the settings keys of this format (besides :data:`calib.ingest.common.COMMON_KEYS`)
+KEYS = {"files", "sample_rate_hz"}
+
 
 def import_imu_tk(settings) -> xr.Dataset:
     """IMU-TK text pair: ``files: {accel: ..., gyro: ...}``, each row ``timestamp_s x y z`` (whitespace).
@@ -25,7 +28,7 @@ def import_imu_tk(settings) -> xr.Dataset:
     ``sample_rate_hz`` (optional) is the nominal rate, checked to 1 % against the median time step;
     without it the median step gives the rate. Units/kind from ``accel``/``gyro`` (raw Xsens: count, rate).
     """
-    check_keys(settings, "imu_tk")
+    check_keys(settings, "imu_tk", KEYS)
     files = settings.get("files")
     if not isinstance(files, dict) or set(files) != {"accel", "gyro"}:
         raise serr(settings, "files", "needs exactly the two entries accel and gyro",

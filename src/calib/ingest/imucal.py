@@ -28,6 +28,9 @@ from calib.ingest.common import (
     triad_settings,
 )
 
+#: the settings keys of this format (besides :data:`calib.ingest.common.COMMON_KEYS`)
+KEYS = {"file", "segments_file", "label_column", "sample_column", "sample_rate_hz", "rotation", "labels"}
+
 
 _IMUCAL_STATIC = re.compile(r"^([xyz])_([pa])$")
 _IMUCAL_ROT = re.compile(r"^([xyz])_rot$")
@@ -164,7 +167,7 @@ def import_imucal(settings) -> xr.Dataset:
     ``rotation.rate_deg_s`` (``mean`` = signed angle / segment duration, or the table rate) -- all required,
     the file says none of them. Extra variable ``rotation_angle(segment)`` [deg]: the declared turn.
     """
-    check_keys(settings, "imucal")
+    check_keys(settings, "imucal", KEYS)
     path = data_file(settings, "file")
     fs = declared_rate(settings)
     label_col = settings.get("label_column")

@@ -14,12 +14,15 @@ from calib.ingest.common import (
     serr,
 )
 
+#: the settings keys of this format (besides :data:`calib.ingest.common.COMMON_KEYS`)
+KEYS = {"file", "sample_rate_hz"}
+
 
 def import_mikoff(settings) -> xr.Dataset:
     """mikoff/imu-calib log: six whitespace-separated numbers a row, no header, no time:
     ``ax ay az gx gy gz``. ``sample_rate_hz`` required; units declared in ``accel``/``gyro`` (the data are
     m s-2 and rad s-1)."""
-    check_keys(settings, "mikoff")
+    check_keys(settings, "mikoff", KEYS)
     path = data_file(settings, "file")
     fs = declared_rate(settings)
     names = ["ax", "ay", "az", "gx", "gy", "gz"]

@@ -14,12 +14,15 @@ from calib.ingest.common import (
     serr,
 )
 
+#: the settings keys of this format (besides :data:`calib.ingest.common.COMMON_KEYS`)
+KEYS = {"file", "sample_rate_hz", "data_key", "columns_key"}
+
 
 def import_npz_columns(settings) -> xr.Dataset:
     """NumPy ``.npz`` with a 2-D ``data`` array and a ``columns`` array of names (keys configurable by
     ``data_key`` / ``columns_key``). ``accel.columns`` / ``gyro.columns`` name the three columns of each triad
     in body-axis order; ``sample_rate_hz`` required. Loaded with ``allow_pickle=False``."""
-    check_keys(settings, "npz_columns")
+    check_keys(settings, "npz_columns", KEYS)
     path = data_file(settings, "file")
     fs = declared_rate(settings)
     dk, ck = settings.get("data_key", "data"), settings.get("columns_key", "columns")

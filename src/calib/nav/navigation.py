@@ -44,6 +44,7 @@ from calib.nav import strapdown
 from calib.io.recording import RecordingError
 from calib.nav.strapdown import NavInit
 from calib.core.rotations import dcm_to_euler
+from calib.core.triad import TriadModel
 
 ARCMIN = math.pi / 180.0 / 60.0
 
@@ -80,8 +81,8 @@ def _input_factor(unit: str, sensor: str) -> float:
 class TriadCalibration:
     """Calibration from two triad models N = K E x + b (Liu 2021 eqs. 1-4): x = (K E)^-1 (N - b), then SI."""
 
-    accel: object  # sensors.TriadModel, input unit e.g. 'g', output 'count s-1'
-    gyro: object  # sensors.TriadModel, input unit e.g. 'deg h-1', output 'count s-1'
+    accel: TriadModel  # input unit e.g. 'g', output 'count s-1'
+    gyro: TriadModel  # input unit e.g. 'deg h-1', output 'count s-1'
     raw_units: str = "count s-1"
     _m: dict = field(default_factory=dict, repr=False)
 
