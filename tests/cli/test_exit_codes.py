@@ -115,7 +115,10 @@ def test_signals_leave_no_partial_file_and_keep_the_earlier_output(tmp_path, sig
     out.write_bytes(b"earlier good output")
     proc = subprocess.Popen([sys.executable, "-m", "calib.cli", "simulate", "navigation", str(out), "--config",
                              str(SMALL_CONFIG), "--hours", "200"], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            # a run started in the background inherits SIGINT ignored (shell job control); the
+                            # user's terminal does not: give the child the default disposition a terminal gives
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 60
         while not any(p.name.endswith(".part") for p in tmp_path.iterdir()):
