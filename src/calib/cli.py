@@ -30,6 +30,7 @@ from pathlib import Path
 
 import yaml
 
+from calib import __version__
 from calib.core.errors import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_SIGINT, CalibError, InputError,
                                ResultCheckError, Terminated, input_file, load_mapping, schema_error, yaml_problem)
 
@@ -337,6 +338,7 @@ def _dispatch(a) -> int:
 def main(argv=None):
     p = argparse.ArgumentParser(prog="calib", description=__doc__, epilog=EPILOG,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"calib {__version__}")
     sub = p.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("simulate", help="synthetic sessions (data stage)")
     s.add_argument("kind", choices=["calibration", "navigation", "static_check"])

@@ -134,3 +134,10 @@ def test_signals_leave_no_partial_file_and_keep_the_earlier_output(tmp_path, sig
     assert f"interrupted by {name}" in err and "Traceback" not in err
     assert out.read_bytes() == b"earlier good output"
     assert sorted(os.listdir(tmp_path)) == ["nav.nc"]
+
+
+def test_version_prints_the_package_version_and_exits_0():
+    from calib import __version__
+
+    r = subprocess.run([sys.executable, "-m", "calib.cli", "--version"], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.strip() == f"calib {__version__}" and r.stderr == ""
