@@ -30,6 +30,7 @@ import os
 import statistics
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -37,7 +38,7 @@ from calib.calibration import fit as cal
 from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
 from calib.calibration import optimizers as opt
-from calib.signal import segments as sg
+from calib.signal import synthetic_means as synth
 from calib.core.triad import liu2021_bounds, liu2021_model
 from calib.core import seeds
 
@@ -50,10 +51,10 @@ _CACHE = {}
 def data():
     if "data" not in _CACHE:
         rng = np.random.default_rng(DATA_SEED)
-        acc = sg.synthetic_static(liu2021_model("accel"), idf.liu2021_attitudes(), 0.5, rng, sensor="accel")
-        gst = sg.synthetic_static(liu2021_model("gyro"), idf.liu2021_attitudes(), 80.0, rng, sensor="gyro")
+        acc = synth.synthetic_static(liu2021_model("accel"), idf.liu2021_attitudes(), 0.5, rng, sensor="accel")
+        gst = synth.synthetic_static(liu2021_model("gyro"), idf.liu2021_attitudes(), 80.0, rng, sensor="gyro")
         axes, rates = idf.liu2021_rotation_plan()
-        pairs = sg.synthetic_pairs(liu2021_model("gyro"), axes, rates, 80.0, rng)
+        pairs = synth.synthetic_pairs(liu2021_model("gyro"), axes, rates, 80.0, rng)
         _CACHE["data"] = (acc, gst, pairs)
     return _CACHE["data"]
 
@@ -66,7 +67,7 @@ def problem(name):
     if name.startswith("accel"):
         form = name.split("_")[1]
         o = ob.NormObjective(acc.means, acc.reference, form=form, sigma=acc.sigma, name="L_a")
-        out = (o, cal._default_bounds("accel", acc.output_unit, form, None), acc.n, 9)
+        out = (o, cal.default_bounds("accel", acc.output_unit, form, None), acc.n, 9)
     else:
         lo, hi = liu2021_bounds("gyro")
         d, s = pairs.difference()
@@ -98,7 +99,6 @@ def timings(budget):
     cal.norm_calibration(acc, budget=(20, 20))
     cal.norm_calibration(acc, form="paper12", budget=(20, 20))
     cal.gyro_components(pairs, gst)
-    import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # L_gm leaves E undetermined; the biases may end on a bound
         cal.gyro_dynamic(pairs, gst, budget=(20, 20))

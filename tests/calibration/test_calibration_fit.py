@@ -6,20 +6,32 @@ and the identified norm form recover the truth within their standard errors, eq.
 means, the ranks are 9 of 12 (paper's norm form) and 3 of 9 (L_gm), the z-scores over many noise seeds are
 standard normal, and bad input gives clear errors.
 """
+import json
 import math
+import types
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
+from scipy.signal import lfilter
 
+from calib.calibration import covariance as cv
 from calib.calibration import fit as cal
 from calib.core import earth
 from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
 from calib.signal import segments as sg
+from calib.signal import synthetic_means as synth
 from calib.io.recording import make_dataset
 from calib.core.triad import liu2021_model
 from calib.core.rotations import axis_angle
+from calib.io import recording as recording_io
+from calib.signal import allan
+from calib.signal import noisecov as nc
+from calib.studies import calibration as cs
+from calib.studies import stages
 
 ACC = liu2021_model("accel")
 GYR = liu2021_model("gyro")
@@ -35,13 +47,13 @@ def tri9_truth(model):
 
 
 def accel_static(seed, sigma=SIG_A):
-    return sg.synthetic_static(ACC, ATT, sigma, np.random.default_rng(seed), sensor="accel")
+    return synth.synthetic_static(ACC, ATT, sigma, np.random.default_rng(seed), sensor="accel")
 
 
 def gyro_data(seed):
     rng = np.random.default_rng(seed)
-    st = sg.synthetic_static(GYR, ATT, SIG_G, rng, sensor="gyro")
-    pr = sg.synthetic_pairs(GYR, AXES, RATES, SIG_G, rng)
+    st = synth.synthetic_static(GYR, ATT, SIG_G, rng, sensor="gyro")
+    pr = synth.synthetic_pairs(GYR, AXES, RATES, SIG_G, rng)
     return st, pr
 
 
@@ -119,8 +131,6 @@ def test_bounds_excluding_the_optimum_are_reported():
 
 
 def test_weighted_fit_and_json_export():
-    import json
-
     st = accel_static(25)
     st.sigma[:, 2] *= 3.0  # unequal sigmas: the weighted fit is the efficient one
     st.means[:, 2] += np.random.default_rng(26).normal(size=24) * SIG_A * math.sqrt(8.0)
@@ -134,10 +144,10 @@ def test_weighted_fit_and_json_export():
 
 
 def test_too_few_positions_message():
-    st = sg.synthetic_static(ACC, ATT[:6], SIG_A, np.random.default_rng(0), sensor="accel")
+    st = synth.synthetic_static(ACC, ATT[:6], SIG_A, np.random.default_rng(0), sensor="accel")
     with pytest.raises(sg.SegmentError, match=r"at least 10 .* found 6"):
         cal.norm_calibration(st)
-    st4 = sg.synthetic_static(ACC, ATT[:4], SIG_A, np.random.default_rng(0), sensor="accel")
+    st4 = synth.synthetic_static(ACC, ATT[:4], SIG_A, np.random.default_rng(0), sensor="accel")
     with pytest.raises(sg.SegmentError, match=r"at least 5 .* found 4"):
         cal.separate_accel(st4)
 
@@ -146,8 +156,8 @@ def test_too_few_positions_message():
 # gyro
 # ---------------------------------------------------------------------------------------------------------
 def test_eq25_components_exact_on_noise_free_means():
-    st = sg.synthetic_static(GYR, ATT, SIG_G, None, sensor="gyro")
-    pr = sg.synthetic_pairs(GYR, AXES, RATES, SIG_G, None)
+    st = synth.synthetic_static(GYR, ATT, SIG_G, None, sensor="gyro")
+    pr = synth.synthetic_pairs(GYR, AXES, RATES, SIG_G, None)
     d, _ = pr.difference()
     w = pr.delta_input()
     # literally eq. 25: (N+ - N-) / (2 omega) is column k of K E for a rotation about body axis k
@@ -178,7 +188,7 @@ def test_separate_gyro_joint_least_squares():
     # rotation means of single segments (not pairs) with their known inputs
     rot_axes = np.repeat(np.eye(3), 2, axis=0)
     rates = np.tile([20.0, -20.0], 3)
-    att = np.array([sg.vertical_axis_attitude(a) for a in rot_axes])
+    att = np.array([synth.vertical_axis_attitude(a) for a in rot_axes])
     rm = sg.RotationMeans(sensor="gyro", means=np.zeros((6, 3)), sigma=np.full((6, 3), SIG_G), axis=rot_axes,
                           rate_deg_s=rates, revolutions=np.ones(6), duration_s=np.full(6, 18.0),
                           input_unit="deg h-1", output_unit="count s-1", latitude_deg=39.98, attitude=att)
@@ -302,7 +312,7 @@ def make_recording(n_static=24, static_s=30.0, rot_rate=30.0, revs=1.5, seed=0, 
         atts.append(ATT[m])
         add(lambda kk, C=ATT[m]: C, np.zeros(3), gap, -1)
     for a in np.eye(3):
-        C0 = sg.vertical_axis_attitude(a)
+        C0 = synth.vertical_axis_attitude(a)
         for sgn in (1.0, -1.0):
             r = sgn * rot_rate
             n = int(round(revs * 360.0 / abs(r) * FS))
@@ -364,8 +374,6 @@ def test_full_chain_from_recording(recording):
 def test_static_detector_hook(recording, monkeypatch):
     """Without a segment table the static segments come from calib.signal.detect.detect_static(accel, gyro, fs)
     (``.intervals`` [start, stop)); replaced here by the known segments to test the hook itself."""
-    import types
-
     bare = recording.drop_vars(["segment_index", "segment_kind", "segment_label", "rotation_axis", "rotation_rate",
                                 "nominal_attitude", "table_angle"])
     si = recording["segment_index"].values
@@ -411,14 +419,10 @@ def test_zscores_with_sigma_from_allan_on_recordings():
 # ---------------------------------------------------------------------------------------------------------
 # slow noise (bias instability) from a long static record: closed forms and correlated segment means
 # ---------------------------------------------------------------------------------------------------------
-from calib.signal import allan  # noqa: E402
-from calib.signal import noisecov as nc  # noqa: E402
 
 
 def _gm_record(sigma, tc, fs, n, rng):
     """Exact discretisation of a stationary Gauss-Markov process: beta_k = a beta_k-1 + sigma sqrt(1-a^2) z_k."""
-    from scipy.signal import lfilter
-
     a = math.exp(-1.0 / (fs * tc))
     z = rng.normal(size=n) * sigma * math.sqrt(1.0 - a * a)
     z[0] = rng.normal() * sigma
@@ -480,7 +484,7 @@ def test_window_mean_covariances_equal_their_double_integrals():
 
 
 def _static_with_times(sigma_w):
-    st = sg.synthetic_static(ACC, ATT, sigma_w, None, sensor="accel")
+    st = synth.synthetic_static(ACC, ATT, sigma_w, None, sensor="accel")
     st.t_start_s = 65.0 * np.arange(st.n)
     return st
 
@@ -497,8 +501,8 @@ def test_common_mode_noise_goes_exactly_into_the_biases():
     obj = ob.NormObjective(st.means, st.reference, form="tri9", sigma=st.sigma)
     J = obj.jacobian(x9)
     scale = np.ones(9)
-    C0 = cal._sandwich_full(J, cal.norm_residual_cov(obj, x9, white), scale)
-    C1 = cal._sandwich_full(J, cal.norm_residual_cov(obj, x9, common), scale)
+    C0 = cv.sandwich_full(J, cv.norm_residual_cov(obj, x9, white), scale)
+    C1 = cv.sandwich_full(J, cv.norm_residual_cov(obj, x9, common), scale)
     D = np.zeros((9, 9))
     D[6:, 6:] = np.diag(s2)
     assert np.allclose(C1 - C0, D, atol=1e-9 * np.abs(C0).max())
@@ -542,19 +546,12 @@ def test_zscores_with_correlated_segment_means_need_the_full_covariance():
 def test_default_calibration_with_and_without_a_long_static_record(tmp_path):
     """Recording chain: without a long record the result says the bias instability is not in the sigma (and what
     record would fix it); with one, the same estimates get the slow part, and the window times are the plan's."""
-    import yaml
-    from pathlib import Path
-
-    from calib.studies import calibration as cs
-    from calib.io import recording
-    from calib.studies import stages
-
     cfg = yaml.safe_load((Path(__file__).parents[2] / "config" / "config.yaml").read_text())
     s = dict(cfg["calibration_session"], dwell_s=20.0, rotation_rates_deg_s=[30.0], revolutions=1)
     stages.simulate_calibration(s, cfg["site"], 3, tmp_path / "s.nc", tmp_path / "s.json")
     stages.simulate_static_check(dict(cfg["static_check"], duration_h=0.3), s, cfg["site"], 4, tmp_path / "l.nc",
                                  tmp_path / "l.json")
-    inp = sg.extract(recording.load(tmp_path / "s.nc"))
+    inp = sg.extract(recording_io.load(tmp_path / "s.nc"))
     st = inp.accel_static
     assert np.all(np.diff(st.t_start_s) > st.duration_s[:-1])  # windows in time order, disjoint
     cc = dict(cfg["calibration"], NP=20, EG=60)

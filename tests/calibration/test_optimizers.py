@@ -6,7 +6,7 @@ import pytest
 from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
 from calib.calibration import optimizers as opt
-from calib.signal import segments as sg
+from calib.signal import synthetic_means as synth
 from calib.core.triad import liu2021_bounds, liu2021_model
 
 
@@ -14,7 +14,7 @@ from calib.core.triad import liu2021_bounds, liu2021_model
 def accel_problem():
     """Accelerometer static means at Liu 2021's 24 attitudes (closed form + noise of known sigma)."""
     model = liu2021_model("accel")
-    st = sg.synthetic_static(model, idf.liu2021_attitudes(), 0.5, np.random.default_rng(3), sensor="accel")
+    st = synth.synthetic_static(model, idf.liu2021_attitudes(), 0.5, np.random.default_rng(3), sensor="accel")
     lo, hi = liu2021_bounds("accel")
     idx = idf.form_indices("tri9")
     obj = ob.NormObjective(st.means, st.reference, form="tri9", sigma=st.sigma)
@@ -47,7 +47,7 @@ def test_mutation_indices_distinct_and_not_the_target():
     rng = np.random.default_rng(0)
     for _ in range(200):
         u = rng.random((NP, 4 + 2 * NP))
-        opt._k_de_trials(pop, 0, u, 1.0, 0.0, 1.0, lo, hi, True, 0, out)  # eq. 11 with F = 1, CR = 1
+        opt.de_trial_vectors(pop, 0, u, 1.0, 0.0, 1.0, lo, hi, True, 0, out)  # eq. 11 with F = 1, CR = 1
         for i in range(NP):
             assert out[i, i] == 0.0
             assert sorted(out[i][out[i] != 0].tolist()) == [-1.0, 1.0, 1.0]
@@ -62,7 +62,7 @@ def test_current_to_best_and_integration_formulas():
     u[:, 4:4 + D] = 0.0  # CR: every component from the mutant
     F, bw, ib = 0.7, 0.4, 2
     out = np.empty_like(pop)
-    opt._k_de_trials(pop, ib, u, F, bw, 1.0, lo, hi, True, 0, out)
+    opt.de_trial_vectors(pop, ib, u, F, bw, 1.0, lo, hi, True, 0, out)
     for i in range(NP):
         k1 = 1 + int(u[i, 0] * (NP - 1))
         k2 = 1 + int(u[i, 1] * (NP - 2))
@@ -83,7 +83,7 @@ def test_trials_stay_within_bounds(mode):
     pop = rng.random((NP, D))
     out = np.empty_like(pop)
     for _ in range(50):
-        opt._k_de_trials(pop, 0, rng.random((NP, 4 + 2 * D)), 2.0, 0.5, 0.9, lo, hi, True,
+        opt.de_trial_vectors(pop, 0, rng.random((NP, 4 + 2 * D)), 2.0, 0.5, 0.9, lo, hi, True,
                          opt.BOUND_MODES[mode], out)
         assert np.all((out >= lo) & (out <= hi))
 
@@ -100,7 +100,7 @@ def test_kernel_matches_numpy_reference(accel_problem):
 @pytest.mark.parametrize("form", ["paper12", "tri9", "bias3"])
 def test_norm_jacobian_matches_finite_differences(form):
     model = liu2021_model("gyro")
-    st = sg.synthetic_static(model, idf.liu2021_attitudes(), 80.0, np.random.default_rng(5), sensor="gyro")
+    st = synth.synthetic_static(model, idf.liu2021_attitudes(), 80.0, np.random.default_rng(5), sensor="gyro")
     f = ob.Form(form, KE=model.KE)
     o = ob.NormObjective(st.means, st.reference, form=f)
     th = f.from_KE_b(ob.lower_triangular_gauge(model.KE)[0] if form == "tri9" else model.KE, model.b)
@@ -115,7 +115,7 @@ def test_norm_jacobian_matches_finite_differences(form):
 def test_lgm_jacobian_and_kernel():
     model = liu2021_model("gyro")
     axes, rates = idf.liu2021_rotation_plan()
-    pr = sg.synthetic_pairs(model, axes, rates, 80.0, np.random.default_rng(6))
+    pr = synth.synthetic_pairs(model, axes, rates, 80.0, np.random.default_rng(6))
     d, s = pr.difference()
     for rel in (True, False):
         o = ob.LgmObjective(d, pr.delta_input(), sigma_d=s, relative=rel)

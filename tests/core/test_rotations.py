@@ -37,15 +37,30 @@ def test_yaw_is_counter_clockwise_from_north_towards_west():
 
 
 _DIRS = RNG.normal(size=(30, 3))
-ROTVECS = _DIRS / np.linalg.norm(_DIRS, axis=1, keepdims=True) * RNG.uniform(1e-10, np.pi - 1e-3, (30, 1))
+_UNIT = _DIRS / np.linalg.norm(_DIRS, axis=1, keepdims=True)
+ROTVECS = np.vstack([_UNIT[:24] * RNG.uniform(1e-10, np.pi - 1e-3, (24, 1)),  # the general case
+                     _UNIT[24:27] * 1e-9,  # the series branch of Rodrigues
+                     _UNIT[27:] * (np.pi - 1e-9)])  # next to pi, where the rotation vector is still unique
 
 
 @pytest.mark.parametrize("rv", list(ROTVECS))
 def test_rotation_vector_against_scipy_and_round_trip(rv):
-    """Angles below pi, where the rotation vector is unique (the documented range of dcm_to_rotvec)."""
+    """Rodrigues (rotvec_to_dcm) against scipy, and back through dcm_to_rotvec, for angles up to pi."""
     ref = Rotation.from_rotvec(rv).as_matrix()
-    assert np.allclose(R.rotvec_to_dcm(rv), ref, atol=1e-14)
-    assert np.allclose(R.dcm_to_rotvec(ref), rv, atol=1e-9 * max(1.0, np.linalg.norm(rv)))
+    c = R.rotvec_to_dcm(rv)
+    assert np.allclose(c, ref, atol=1e-14)
+    assert np.allclose(c @ c.T, np.eye(3), atol=1e-14) and np.isclose(np.linalg.det(c), 1.0)
+    assert np.allclose(R.dcm_to_rotvec(c), rv, rtol=0, atol=1e-12)
+
+
+def test_rotation_vector_of_elementary_rotations_and_batches():
+    # closed forms: rot_x(a) is the rotation vector (a, 0, 0), and so on, for any |a| < pi
+    for k, rot in enumerate((R.rot_x, R.rot_y, R.rot_z)):
+        for a in (-3.0, -0.5, 1e-7, 0.25, 3.1):
+            assert np.allclose(R.dcm_to_rotvec(rot(a)), np.eye(3)[k] * a, rtol=0, atol=1e-14)
+    assert np.allclose(R.dcm_to_rotvec(np.eye(3)), 0.0, atol=0)
+    batch = np.array([R.rot_x(0.1), R.rot_y(-0.2), R.rot_z(0.3)])
+    assert np.allclose(R.dcm_to_rotvec(batch), np.diag([0.1, -0.2, 0.3]), atol=1e-15)
 
 
 def test_axis_angle_is_rodrigues():
@@ -80,3 +95,33 @@ def test_small_misalignment_convention():
     c_true = R.euler_to_dcm(0.1, -0.2, 0.3)
     c_comp = (np.eye(3) - R.skew(phi)) @ c_true
     assert np.allclose(R.dcm_to_rotvec(c_comp @ c_true.T), -phi, atol=1e-12)
+
+
+def test_quaternion_and_euler_of_closed_form_rotations():
+    a = 0.7
+    # a turn a about z: q = (cos a/2, 0, 0, sin a/2); about x: (cos a/2, sin a/2, 0, 0)
+    assert np.allclose(R.dcm_to_quat(R.rot_z(a)), [np.cos(a / 2), 0, 0, np.sin(a / 2)], atol=1e-15)
+    assert np.allclose(R.dcm_to_quat(R.rot_x(a)), [np.cos(a / 2), np.sin(a / 2), 0, 0], atol=1e-15)
+    assert np.allclose(R.quat_to_dcm([np.cos(a / 2), 0, np.sin(a / 2), 0]), R.rot_y(a), atol=1e-15)
+    # a half turn about x has q0 = 0 (the trace <= 0 branch): q = (0, 1, 0, 0)
+    assert np.allclose(R.dcm_to_quat(np.diag([1.0, -1.0, -1.0])), [0, 1, 0, 0], atol=1e-15)
+    # quat_to_dcm normalises: any positive multiple of q is the same rotation
+    q = np.array([0.9, -0.1, 0.3, 0.2])
+    assert np.allclose(R.quat_to_dcm(3.0 * q), R.quat_to_dcm(q), atol=1e-15)
+    c = R.quat_to_dcm(q)
+    assert np.allclose(c @ c.T, np.eye(3), atol=1e-15) and np.isclose(np.linalg.det(c), 1.0)
+    # pitch alone is a rotation about East (x), roll alone about the body y axis, yaw alone about Up (z)
+    assert np.allclose(R.dcm_to_euler(R.rot_x(0.3)), (0.3, 0.0, 0.0), atol=1e-15)
+    assert np.allclose(R.dcm_to_euler(R.rot_y(-0.4)), (0.0, -0.4, 0.0), atol=1e-15)
+    assert np.allclose(R.dcm_to_euler(R.rot_z(2.5)), (0.0, 0.0, 2.5), atol=1e-15)
+
+
+@pytest.mark.parametrize("pitch,roll,yaw", ANGLES[:20])
+def test_round_trip_euler_dcm_quaternion_rotation_vector(pitch, roll, yaw):
+    """Euler -> DCM -> quaternion -> DCM -> rotation vector -> DCM -> Euler returns the angles."""
+    c = R.euler_to_dcm(pitch, roll, yaw)
+    c2 = R.quat_to_dcm(R.dcm_to_quat(c))
+    c3 = R.rotvec_to_dcm(R.dcm_to_rotvec(c2))
+    for m in (c2, c3):
+        assert np.allclose(m, c, atol=1e-13)
+    assert np.allclose(R.dcm_to_euler(c3), (pitch, roll, yaw), atol=1e-12)

@@ -15,7 +15,7 @@ import scipy.linalg
 
 from calib.core import earth
 from calib.nav import errormodel
-from calib.core.rotations import euler_to_dcm, rotvec_to_dcm
+from calib.core.rotations import dcm_to_euler, euler_to_dcm, rotvec_to_dcm
 
 LAT = math.radians(30.58)
 C = euler_to_dcm(0.02, -0.01, 0.7)
@@ -125,8 +125,6 @@ def test_longitude_error_of_model_grows_at_longitude_rate_over_240h_1e4():
 def test_phi_to_euler_error_matches_exact_small_rotation_1e5(att):
     """d(pitch, roll, yaw) of C_computed = exp(-[phi x]) C_true vs the linear map, phi ~ 1e-6 rad, within
     1e-5 relative (second order)."""
-    from calib.core.rotations import dcm_to_euler
-
     Ct = euler_to_dcm(*att)
     phi = np.array([1.0, -2.0, 1.5]) * 1e-6
     Cc = rotvec_to_dcm(-phi) @ Ct

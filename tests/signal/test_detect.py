@@ -44,7 +44,7 @@ def test_moving_variance_norm_exact_for_raw_counts_across_chunks():
     n, w = 200_000, 101
     x = 32768.0 + np.round(rng.normal(scale=3.0, size=(n, 3)))
     s = detect.moving_variance_norm(x, w)
-    for seam in (detect._CHUNK, 2 * detect._CHUNK):
+    for seam in (detect.CHUNK, 2 * detect.CHUNK):
         for i in range(seam - 120, seam + 120, 7):
             assert s[i] == pytest.approx(_brute(x, w, i), rel=1e-9)
     # the median of the statistic is near its expectation sqrt(3) * 9 (chi-square spread shrinks with w)

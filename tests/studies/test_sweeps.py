@@ -11,8 +11,7 @@ import xarray as xr
 import yaml
 
 from calib.studies import stages
-from calib.studies import sweeps
-from calib.core.earth import DEG_PER_H
+from calib.studies import sweep_summary, sweeps
 
 ROOT = Path(__file__).resolve().parents[2]
 SWEEP_SCHEMA = ROOT / "workflow" / "schemas" / "sweep.schema.yaml"
@@ -199,8 +198,8 @@ def test_gather_puts_every_point_at_its_coordinates(tmp_path):
             ds.to_netcdf(p)
             values.append({"NP": NP, "EG": EG})
             paths.append(p)
-    out = sweeps.gather("calibration", "t", paths, values, ["NP", "EG"], tmp_path / "s.nc", tmp_path / "s.csv",
-                        tmp_path / "s.png", tmp_path / "m.json", attrs={"sweep_file": "t.yaml"})
+    out = sweep_summary.gather("calibration", "t", paths, values, ["NP", "EG"], tmp_path / "s.nc", tmp_path / "s.csv",
+                               tmp_path / "s.png", tmp_path / "m.json", attrs={"sweep_file": "t.yaml"})
     assert list(out["success_pct"].dims) == ["NP", "EG"]
     for v in values:
         assert float(out["success_pct"].sel(v)) == v["NP"] + v["EG"] / 1000

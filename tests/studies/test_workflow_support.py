@@ -12,7 +12,8 @@ import yaml
 
 from calib.figures import style as figures
 from calib.nav import strapdown
-from calib.studies import tracking
+from calib.studies import calibration as calibration_study
+from calib.studies import stages, tracking
 from calib.core.earth import DEG_PER_H
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,9 +59,6 @@ def test_multistream_navigation_independent_of_thread_count():
 
 def test_calibration_study_rerun_is_identical(tmp_path):
     """The same config gives xarray-identical netCDF and byte-identical figures, with 1 or 2 workers."""
-    from calib.studies import calibration as calibration_study
-    from calib.studies import stages
-
     cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
     s = cfg["calibration_session"]
     s.update(dwell_s=5.0, revolutions=1, rotation_rates_deg_s=[30.0])

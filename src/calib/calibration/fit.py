@@ -40,8 +40,9 @@ Gyro
 Standard errors: from the residual Jacobian at the solution and the sigma of every mean estimated from the
 data (Allan deviation at tau = segment duration, ``allan.py``): for the unweighted eq. 7 the sandwich
 ``C = J^+ diag(sigma_r^2) J^+T`` (pseudo-inverse in bound-scaled coordinates, so rank-deficient forms give the
-minimum-norm gauge), for weighted / linear fits ``(J^T W J)^-1``. The covariance is *not* rescaled by the
-reduced chi-square; ``chi2`` and ``dof`` are reported so the user can judge the sigma model.
+minimum-norm gauge), for weighted / linear fits ``(J^T W J)^-1`` (:mod:`calib.calibration.covariance`). The
+covariance is *not* rescaled by the reduced chi-square; ``chi2`` and ``dof`` are reported so the user can judge
+the sigma model.
 """
 from __future__ import annotations
 
@@ -51,7 +52,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calib.calibration import covariance as cv
 from calib.calibration import identifiability as idf
+from calib.calibration import linear as lin
 from calib.calibration import objectives as ob
 from calib.calibration import optimizers as opt
 from calib.signal.segments import RotationMeans, RotationPairs, SegmentError, StaticMeans, require_positions
@@ -175,48 +178,10 @@ class CalibrationResult:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# helpers
+# search bounds
 # ---------------------------------------------------------------------------------------------------------
-def _sandwich(J, sigma_r, scale, rcond=1e-8):
-    """C = J^+ diag(sigma_r^2) J^+T computed in scaled coordinates (min-norm gauge if rank-deficient)."""
-    Js = J * scale[None, :]
-    Jp = np.linalg.pinv(Js, rcond=rcond)
-    Cs = (Jp * sigma_r[None, :] ** 2) @ Jp.T
-    return Cs * scale[:, None] * scale[None, :]
-
-
-def _sandwich_full(J, C_r, scale, rcond=1e-8):
-    """C = J^+ C_r J^+T for correlated residuals of covariance ``C_r`` (M, M), in scaled coordinates."""
-    Js = J * scale[None, :]
-    Jp = np.linalg.pinv(Js, rcond=rcond)
-    Cs = Jp @ C_r @ Jp.T
-    return Cs * scale[:, None] * scale[None, :]
-
-
-def norm_residual_cov(obj, theta, cov_means):
-    """Covariance (M, M) of the eq. 7 residuals r_m = ref^2 - |x_m|^2 from the covariance of the means.
-
-    dr_m / dN_m = -2 u_m^T with u_m = (K E)^-T x_m, axes independent, so
-    C_r[m, n] = sum_i 4 u_mi u_ni C_i[m, n], C_i = ``cov_means[i]`` (M, M) [output unit^2] of axis i."""
-    _, _, u = obj.input_directions(theta)
-    return 4.0 * np.einsum("mi,ni,imn->mn", u, u, np.asarray(cov_means, dtype=float))
-
-
-def _weighted_cov(Jw, scale, rcond=1e-8):
-    Js = Jw * scale[None, :]
-    Cs = np.linalg.pinv(Js.T @ Js, rcond=rcond**2, hermitian=True)
-    return Cs * scale[:, None] * scale[None, :]
-
-
-def _paper_cov(M, cov_lin):
-    """Covariance of [K, E offdiag, b] from that of [vec(M) row-major, b] (delta method)."""
-    G = np.zeros((12, 12))
-    G[:9, :9] = ob.paper_jacobian(M)
-    G[9:, 9:] = np.eye(3)
-    return G @ cov_lin @ G.T
-
-
-def _default_bounds(sensor, output_unit, form_name, bounds):
+def default_bounds(sensor, output_unit, form_name, bounds):
+    """(lower, upper) of ``form_name``: ``bounds`` if given, else Liu 2021 Tables 1/3 (count outputs only)."""
     if bounds is not None:
         lo, hi = opt.parse_bounds(bounds)
         n = len(ob.FORM_NAMES[form_name])
@@ -252,20 +217,6 @@ def _report_bounds(names, x, lo, hi, notes, rtol=1e-4):
     return out
 
 
-def _propagate_linear(est, y0, sigma):
-    """Covariance of est(y) for independent y with std sigma; est linear in y (central differences, h = sigma)."""
-    y0 = np.asarray(y0, dtype=float)
-    sigma = np.asarray(sigma, dtype=float)
-    cols = []
-    for k in range(y0.size):
-        h = sigma[k]
-        e = np.zeros_like(y0)
-        e[k] = h
-        cols.append((est(y0 + e) - est(y0 - e)) / (2.0 * h) * sigma[k])
-    A = np.array(cols).T  # d est / d (y / sigma)
-    return A @ A.T
-
-
 # ---------------------------------------------------------------------------------------------------------
 # classical (separate) calibration
 # ---------------------------------------------------------------------------------------------------------
@@ -275,7 +226,7 @@ def separate_accel(static: StaticMeans) -> CalibrationResult:
     require_positions(static, 5, "the separate (vector) calibration of 12 parameters")
     x_in = static.true_inputs()
     try:
-        M, b, cov_lin, chi2 = ob.vector_solve(static.means, x_in, static.sigma)
+        M, b, cov_lin, chi2 = lin.vector_solve(static.means, x_in, static.sigma)
     except ValueError as exc:
         raise SegmentError(f"{static.source or static.sensor}: {exc}") from exc
     return _linear_result(static.sensor, "separate (vector LS)", M, b, cov_lin, chi2.sum(),
@@ -297,7 +248,7 @@ def separate_gyro(static: StaticMeans, rotations: RotationMeans | None = None) -
     if N.shape[0] < 5:
         raise SegmentError(f"separate gyro calibration needs at least 5 segments (static + rotation), "
                            f"found {N.shape[0]}")
-    M, b, cov_lin, chi2 = ob.vector_solve(N, W, S)
+    M, b, cov_lin, chi2 = lin.vector_solve(N, W, S)
     notes = [] if rotations is not None else ["static positions only: Earth rate is the only input (weak)"]
     return _linear_result(static.sensor, "separate (vector LS)", M, b, cov_lin, chi2.sum(), 3 * (N.shape[0] - 4),
                           static, notes=notes)
@@ -306,7 +257,7 @@ def separate_gyro(static: StaticMeans, rotations: RotationMeans | None = None) -
 def _linear_result(sensor, method, M, b, cov_lin, chi2, dof, static, notes, frame=FRAME_BODY, objective_L=True,
                    units=None):
     theta = ob.paper_vector(M, b)
-    cov = _paper_cov(M, cov_lin)
+    cov = cv.paper_cov(M, cov_lin)
     L = math.nan
     if objective_L and isinstance(static, StaticMeans):
         L = ob.NormObjective(static.means, static.reference).eq7(theta)
@@ -334,13 +285,14 @@ def norm_calibration(static: StaticMeans, *, form: str = "tri9", method: str = "
     ``cov_means`` (3, M, M): full covariance of the static means per axis [output unit^2], e.g. with the
     correlated bias instability of ``calib.signal.noisecov`` (default ``static.cov_axes``; None: independent means
     with std ``static.sigma``). The estimate is unchanged (eq. 7 is unweighted); its covariance is the sandwich
-    ``C = J^+ C_r J^+T`` with ``C_r`` from :func:`norm_residual_cov`, and chi2 = r^T C_r^-1 r.
+    ``C = J^+ C_r J^+T`` with ``C_r`` from :func:`calib.calibration.covariance.norm_residual_cov`, and
+    chi2 = r^T C_r^-1 r.
     """
     needed = {"tri9": 10, "paper12": 10, "bias3": 4}[form]
     require_positions(static, needed, f"the norm calibration (eq. 7, form {form}: "
                       f"{needed - 1} identifiable parameters + 1)")
     rng = np.random.default_rng(seed) if rng is None else rng
-    lo, hi = _default_bounds(static.sensor, static.output_unit, form, bounds)
+    lo, hi = default_bounds(static.sensor, static.output_unit, form, bounds)
     name = "L_a (eq. 7)" if static.sensor == "accel" else "L_g (eq. 7)"
     obj = ob.NormObjective(static.means, static.reference, form=form, sigma=static.sigma, KE=KE, name=name)
     res = opt.minimize(method, obj, (lo, hi), rng, budget, **opts)
@@ -360,20 +312,20 @@ def norm_calibration(static: StaticMeans, *, form: str = "tri9", method: str = "
         raise ValueError("weighted=True with a full covariance of the means is not implemented; use the "
                          "unweighted fit (the sandwich covariance accounts for the correlation)")
     if weighted:
-        cov = _weighted_cov(J, scale)
+        cov = cv.weighted_cov(J, scale)
         rw = obj.residuals(x)
         chi2 = float(rw @ rw)
         obj.weighted = False
     elif cov_means is not None:
-        C_r = norm_residual_cov(obj, x, cov_means)
-        cov = _sandwich_full(J, C_r, scale)
+        C_r = cv.norm_residual_cov(obj, x, cov_means)
+        cov = cv.sandwich_full(J, C_r, scale)
         r = obj.residuals(x)
         chi2 = float(r @ np.linalg.solve(C_r, r))
         notes.append("covariance: sandwich with the full covariance of the static means (noise model with the "
                      "slow part, correlated between segments)")
     else:
         sr = obj.residual_sigma(x)
-        cov = _sandwich(J, sr, scale)
+        cov = cv.sandwich(J, sr, scale)
         chi2 = float(np.sum((obj.residuals(x) / sr) ** 2))
     rep = idf.analyze_objective(obj, x, scale, label=f"{static.sensor} {name}, form {form}")
     if form == "tri9":
@@ -498,7 +450,7 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
     d, sd = pairs.difference()
     w = pairs.delta_input()
     try:
-        M, _ = ob.eq25_solve(d, w, sd)
+        M, _ = lin.eq25_solve(d, w, sd)
     except ValueError as exc:
         raise SegmentError(str(exc)) from exc
     have_pair_att = pairs.attitude is not None
@@ -513,7 +465,7 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
     notes = [f"K E from the component form of eq. 25 ({pairs.n} pairs); biases from {bias_from}"]
     J, nst = pairs.n, 0 if static is None else static.n
     if bias_from == "norm":
-        lo, hi = _default_bounds("gyro", static.output_unit, "bias3", None if bounds is None else bounds)
+        lo, hi = default_bounds("gyro", static.output_unit, "bias3", None if bounds is None else bounds)
         rng = np.random.default_rng(seed) if rng is None else rng
         o = ob.NormObjective(static.means, static.reference, form="bias3", KE=M)
         b = opt.ide_lsq(o, (lo, hi), rng, budget).x
@@ -524,11 +476,11 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
             p = y[:3 * J].reshape(J, 3)
             m = y[3 * J:6 * J].reshape(J, 3)
             st = y[6 * J:].reshape(nst, 3)
-            Mx, _ = ob.eq25_solve(p - m, w, sd)
+            Mx, _ = lin.eq25_solve(p - m, w, sd)
             ox = ob.NormObjective(st, static.reference, form="bias3", KE=Mx)
             return np.concatenate([Mx.ravel(), opt.lsq(ox, (lo, hi), x0=b).x])
 
-        cov_lin = _propagate_linear(est, y0, s0)
+        cov_lin = cv.propagate_linear(est, y0, s0)
     else:
         b, _, _ = _bias_observations(M, pairs, static, bias_from)
         cov_lin = _eq25_covariance(pairs, static, w, bias_from, cov_obs)
@@ -561,7 +513,7 @@ def gyro_dynamic(pairs: RotationPairs, static: StaticMeans, *, method: str = "id
     """
     rng = np.random.default_rng(seed) if rng is None else rng
     require_positions(static, 4, "the bias step (eq. 7 with K E held)")
-    lo12, hi12 = _default_bounds("gyro", static.output_unit, "paper12", bounds)
+    lo12, hi12 = default_bounds("gyro", static.output_unit, "paper12", bounds)
     d, sd = pairs.difference()
     w = pairs.delta_input()
     lgm = ob.LgmObjective(d, w, sigma_d=sd, form="ke9", relative=relative)
@@ -569,14 +521,14 @@ def gyro_dynamic(pairs: RotationPairs, static: StaticMeans, *, method: str = "id
     x1 = r1.x
     J1 = lgm.jacobian(x1)
     scale1 = hi12[:9] - lo12[:9]
-    cov1 = _sandwich(J1, lgm.residual_sigma(x1), scale1)
+    cov1 = cv.sandwich(J1, lgm.residual_sigma(x1), scale1)
     rep1 = idf.analyze_objective(lgm, x1, scale1, label="gyro L_gm (eq. 26)")
     M, _ = ob.Form("ke9").KE_b(x1)
     bias = ob.NormObjective(static.means, static.reference, form="bias3", KE=M, sigma=static.sigma, name="L_g")
     r2 = opt.minimize(method, bias, (lo12[9:], hi12[9:]), rng, budget, **opts)
     b = r2.x
     J2 = bias.jacobian(b)
-    cov2 = _sandwich(J2, bias.residual_sigma(b), hi12[9:] - lo12[9:])
+    cov2 = cv.sandwich(J2, bias.residual_sigma(b), hi12[9:] - lo12[9:])
     x = np.concatenate([x1, b])
     cov = np.zeros((12, 12))
     cov[:9, :9] = cov1

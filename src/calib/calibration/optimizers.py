@@ -121,7 +121,7 @@ def _evaluate(objective, pop):
 # DE family: one numba kernel builds the trial vectors of a generation from pre-drawn uniforms
 # ---------------------------------------------------------------------------------------------------------
 @numba.njit(cache=True)
-def _k_de_trials(pop, ibest, u, F, bw, CR, lo, hi, force_one, mode, out):
+def de_trial_vectors(pop, ibest, u, F, bw, CR, lo, hi, force_one, mode, out):
     """Trial vectors: mutation eq. 15 (bw = 0: eq. 11; bw = 1: eq. 14), crossover eq. 12, bound repair.
 
     u (NP, 4 + 2D) uniforms: 3 for the distinct indices, 1 for the forced component, D for crossover,
@@ -241,7 +241,7 @@ def _de_core(objective, bounds, rng, budget, *, method, b_sched, F_const=1.2, CR
             F = F_const
         Fh[t] = F
         u = rng.random((NP, 4 + 2 * D))
-        _k_de_trials(pop, ibest, u, F, bw, CR, lo, hi, force_one, mode, trials)
+        de_trial_vectors(pop, ibest, u, F, bw, CR, lo, hi, force_one, mode, trials)
         ft = np.asarray(objective(trials), dtype=np.float64)
         if ft.shape != (NP,):
             raise ValueError(f"objective returned shape {ft.shape} for a population of {NP}")

@@ -10,10 +10,19 @@ Conventions
   ``C_b^n = R_z(psi) R_x(theta) R_y(gamma)``. Heading (clockwise from North) is ``-psi``.
 * Small attitude errors ``phi`` (the misalignment of He 2019 eq. 4) are defined by
   ``C_b^n_computed = (I - [phi x]) C_b^n_true``.
+
+Numerics
+--------
+The conversions the simulator and the navigation use are the closed forms written here: their last bits
+enter the simulated sessions (table angles, nominal attitudes) and the navigation products, and
+``scipy.spatial.transform.Rotation`` rounds differently (it agrees to ~1e-15 relative and is slower per
+call). scipy's ``Rotation`` is the independent reference of the tests, and it serves :func:`dcm_to_rotvec`
+(used for checking), where its quaternion route stays accurate up to an angle of pi.
 """
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def skew(v):
@@ -56,14 +65,10 @@ def rotvec_to_dcm(rv):
 
 
 def dcm_to_rotvec(c):
-    """Inverse of :func:`rotvec_to_dcm` for rotation angles below pi."""
-    c = np.asarray(c, dtype=float)
-    cos_a = np.clip((np.trace(c) - 1.0) / 2.0, -1.0, 1.0)
-    a = np.arccos(cos_a)
-    w = np.array([c[2, 1] - c[1, 2], c[0, 2] - c[2, 0], c[1, 0] - c[0, 1]]) / 2.0
-    if a < 1e-8:
-        return w
-    return w * a / np.sin(a)
+    """Rotation vector [rad] of a DCM, angle in [0, pi] (inverse of :func:`rotvec_to_dcm`); (N, 3, 3) gives
+    (N, 3). Through scipy's unit quaternion, accurate for every angle up to pi (at exactly pi the sign of
+    the vector is a convention)."""
+    return Rotation.from_matrix(np.asarray(c, dtype=float)).as_rotvec()
 
 
 def euler_to_dcm(pitch, roll, yaw):

@@ -31,7 +31,7 @@ from calib.figures import style as figures
 
 #: rows per chunk in :func:`moving_variance_norm` (the mean is removed per chunk to keep the
 #: running sums exact enough for counts near 32768 and for very long recordings)
-_CHUNK = 1 << 16
+CHUNK = 1 << 16
 
 
 class StaticDetectionError(ValueError):
@@ -64,8 +64,8 @@ def moving_variance_norm(x, w: int) -> np.ndarray:
     nwin = n - w + 1  # number of full windows; window j covers [j, j + w), centred on j + h
     out = np.empty(n)
     var = np.empty((nwin, x.shape[1]))
-    for j0 in range(0, nwin, _CHUNK):
-        j1 = min(j0 + _CHUNK, nwin)
+    for j0 in range(0, nwin, CHUNK):
+        j1 = min(j0 + CHUNK, nwin)
         seg = x[j0:j1 + w - 1]
         seg = seg - seg.mean(axis=0)
         c1 = np.zeros((seg.shape[0] + 1, seg.shape[1]))

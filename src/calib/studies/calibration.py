@@ -7,7 +7,9 @@ Scientific products (netCDF, CSV, figures) never hold wall times; those go to ``
 from __future__ import annotations
 
 import json
+import multiprocessing as mp
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -102,8 +104,6 @@ _WORKER = {}
 def _task(args):
     key, m, seed0 = args
     inp, ccfg = _WORKER["inp"], _WORKER["ccfg"]
-    import warnings
-
     t = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # bound hits are reported in the runs files and tables
@@ -125,8 +125,6 @@ def _map_tasks(inp, ccfg, tasks, workers, progress):
             out.append(_task(t))
             progress()
         return out
-    import multiprocessing as mp
-
     with mp.get_context("fork").Pool(workers) as pool:
         out = []
         for r in pool.imap(_task, tasks):

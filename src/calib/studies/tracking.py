@@ -12,6 +12,7 @@ opened by parallel jobs can corrupt).
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 
@@ -30,8 +31,6 @@ def tracking_uri(results_dir) -> str:
 
 
 def _quiet():
-    import logging
-
     for name in ("mlflow", "alembic", "sqlalchemy"):
         logging.getLogger(name).setLevel(logging.ERROR)
     os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
