@@ -35,7 +35,7 @@ from calib.core.errors import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_SIGIN
                                ResultCheckError, Terminated, input_file, load_mapping, schema_error, yaml_problem)
 
 DEFAULT_CONFIG = "config/config.yaml"
-SCHEMA = Path(__file__).resolve().parents[2] / "workflow" / "schemas" / "config.schema.yaml"
+SCHEMA = Path(__file__).resolve().parents[3] / "workflow" / "schemas" / "config.schema.yaml"
 MAX_HOURS = 240.0            # longest synthetic recording without --force (He 2019's 240 h)
 BYTES_PER_SAMPLE = 6 * 8 + 4  # accel + gyro float64 + float32 temperature: the largest a simulated sample takes
 FORCE_HELP = "run despite implausible magnitudes for the declared units (the refusals become warnings)"
@@ -394,5 +394,3 @@ def main(argv=None):
     return _dispatch(a)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
