@@ -55,8 +55,14 @@ def main(argv):
         sh(PY, "-m", "pytest", "-q", *rest, env=env)
         sh(BIN / "lint-imports", env=env)  # the layer contract of pyproject.toml [tool.importlinter]
         sh(BIN / "snakemake", "--lint", "--configfile", ".test/config.yaml", env=env)
+        env_strict = dict(env, CALIB_FIGURE_CHECK="strict")  # a figure with an empty panel, etc. fails the rule
         sh(BIN / "snakemake", "--profile", "workflow/profiles/default", "--configfile", ".test/config.yaml",
-           env=env)
+           env=env_strict)
+        # CF-1.11 oracle on every kind of netCDF the workflow writes (one optimizer run file stands for all)
+        res = ROOT / ".test" / "results"
+        ncs = sorted(p for p in res.rglob("*.nc") if p.parent.name != "runs") + [res / "calibration" / "runs" /
+                                                                                "accel_ide.nc"]
+        sh(PY, "tools/cf_check.py", *map(str, ncs), env=env)
     elif verb == "setup":
         setup()
     else:

@@ -495,14 +495,14 @@ ATT_ATTRS = {"attitude_pitch_deg": math.degrees(ATT[0]), "attitude_roll_deg": ma
 
 def test_navigate_recording_physical_units_perfect_data_errors_at_rounding_level(tmp_path):
     """30 min of perfect float64 increments (rad, m/s): initial attitude from the recording attributes, errors
-    on a 1 s grid in hours from t = 0, all at rounding level (1e-10 rad, 1e-7 m/s); units attributes set."""
+    on a 1 s grid in seconds from t = 0, all at rounding level (1e-10 rad, 1e-7 m/s); units attributes set."""
     n = 180_000
     w_b, f_b = stationary_rates()
     path = _write(tmp_path, "phys.nc", np.tile(f_b / FS, (n, 1)), np.tile(w_b / FS, (n, 1)), "m s-1", "rad",
                   attrs=ATT_ATTRS)
     ds = navigation.navigate_recording(path, chunk=50_001)
-    assert ds.sizes["time"] == 1801 and ds["time"].attrs["units"] == "h"
-    assert ds["time"].values[-1] == pytest.approx(0.5)
+    assert ds.sizes["time"] == 1801 and ds["time"].attrs["units"] == "s"
+    assert ds["time"].values[-1] == pytest.approx(1800.0)
     for v in ("pitch_err", "roll_err", "yaw_err", "phi_E", "phi_N", "phi_U", "lat_err", "lon_err"):
         assert ds[v].attrs["units"] == "rad" and np.abs(ds[v].values).max() < 1e-10, v
     for v in ("vE_err", "vN_err"):

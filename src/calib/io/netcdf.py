@@ -11,6 +11,7 @@ import contextlib
 import hashlib
 import json
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -21,6 +22,38 @@ from calib.io.atomic import atomic_path, temp_path
 from calib import __version__
 
 ENGINE = "netcdf4"
+#: the CF version every file declares in its ``Conventions`` attribute (with the file's own format after it)
+CF_VERSION = "CF-1.11"
+#: CF (UDUNITS-2) spelling of the unit strings used inside calib; files carry the CF spelling
+CF_UNITS = {"deg": "degree", "deg s-1": "degree s-1", "deg h-1": "degree h-1", "deg s-2": "degree s-2"}
+FROM_CF_UNITS = {v: k for k, v in CF_UNITS.items()}
+
+
+def internal_units(units):
+    """The unit string calib uses internally for a unit read from a file (``degree s-1`` -> ``deg s-1``)."""
+    return FROM_CF_UNITS.get(units, units) if isinstance(units, str) else units
+
+
+def conventions(attrs) -> str:
+    """The file's own format named in its ``Conventions`` attribute (``CF-1.8 calib-recording-1`` ->
+    ``calib-recording-1``), or the legacy lower-case ``conventions`` attribute of earlier files; '' if none."""
+    conv = attrs.get("Conventions", attrs.get("conventions", ""))
+    names = [c for c in re.split(r"[ ,]+", str(conv)) if c and not c.startswith("CF-")]
+    return names[0] if names else ""
+
+
+def cf_dataset(ds: xr.Dataset) -> xr.Dataset:
+    """``ds`` as written: a ``Conventions`` attribute (CF plus the file's own format) and CF unit spellings."""
+    ds = ds.copy()
+    own = conventions(ds.attrs)
+    ds.attrs.pop("conventions", None)
+    ds.attrs["Conventions"] = f"{CF_VERSION} {own}" if own else CF_VERSION
+    for name in list(ds.variables):
+        v = ds[name]
+        u = v.attrs.get("units")
+        if isinstance(u, str) and u in CF_UNITS:
+            v.attrs["units"] = CF_UNITS[u]
+    return ds
 
 
 def git_commit() -> str:
@@ -55,11 +88,14 @@ def provenance(rule: str = "", cfg=None, seed=None) -> dict:
 def write_netcdf(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
     """Write ``ds`` to ``path`` atomically (temporary name, then rename) with the fixed engine."""
     path = Path(path)
-    ds = ds.copy()
+    ds = cf_dataset(ds)
+    if prov is None and "calib_version" not in ds.attrs:
+        prov = provenance()
     if prov:
         ds.attrs.update({k: v for k, v in prov.items() if v is not None})
+    encoding = {c: {"_FillValue": None} for c in ds.coords if ds[c].dtype.kind == "f"}
     with atomic_path(path) as tmp:
-        ds.to_netcdf(tmp, engine=ENGINE)
+        ds.to_netcdf(tmp, engine=ENGINE, encoding=encoding)
     return path
 
 

@@ -14,7 +14,10 @@ dims ``time`` and ``axis`` (= x, y, z); optional ``segment``, ``row``, ``col``.
   ``rotation_axis(segment, axis)`` (unit vector, body frame), ``rotation_rate(segment)`` [deg/s, right-hand
   rule], ``nominal_attitude(segment, row, col)`` (C_b^n, body to ENU).
 * global attributes: ``latitude_deg`` (required), ``height_m``, ``gravity_m_s2``, ``sample_rate_hz``,
-  ``source`` (synthetic | recorded), ``sensor``, ``conventions = "calib-recording-1"``.
+  ``source`` (synthetic | recorded), ``sensor``, ``Conventions = "CF-1.8 calib-recording-1"`` (files of
+  earlier versions: ``conventions = "calib-recording-1"``, still read).
+* units are written in their CF (UDUNITS-2) spelling (``degree s-1``) and read back as the short names of
+  :data:`UNITS` (``deg s-1``); both spellings are accepted on input.
 
 Body frame: whatever the sensor's case marks; for the synthetic unit, Liu 2021's right-front-up.
 Navigation frame: ENU. Rates are signed by the right-hand rule.
@@ -32,7 +35,7 @@ import xarray as xr
 from calib.core import earth
 from calib.core.errors import InputError
 from calib.io.atomic import atomic_path
-from calib.io.netcdf import AtomicNetCDF, write_netcdf
+from calib.io.netcdf import CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, internal_units, write_netcdf
 
 CONVENTIONS = "calib-recording-1"
 AXES = ("x", "y", "z")
@@ -156,19 +159,22 @@ def _open(path):
 
 def check_clock(path, t, fs: float) -> None:
     """The time coordinate ``t`` against the nominal rate ``fs``: no step longer than :data:`GAP_PERIODS`
-    sample periods (a gap, named by its samples, time and size), and the least-squares clock (slope of ``t``
-    against the sample index, robust to jitter) within :data:`CLOCK_REL_TOL` of ``fs``."""
+    sample periods (a gap, named by its samples, time and size) unless it is near a whole multiple (<= 50) of the
+    period (dropped samples), and the least-squares clock (slope of ``t`` against the sample index advanced over
+    dropped samples, robust to jitter) within :data:`CLOCK_REL_TOL` of ``fs``."""
     n = len(t)
     d = np.diff(t)
     period = 1.0 / fs
-    gap = d > GAP_PERIODS * period
+    whole = np.rint(d / period)  # a step near a whole multiple k <= 50 of the period: k - 1 dropped samples
+    dropped = (whole >= 2) & (whole <= 50) & (np.abs(d / period - whole) <= 0.35)
+    gap = (d > GAP_PERIODS * period) & ~dropped
     if gap.any():
         i = int(np.argmax(gap))
         raise RecordingError(path, "time", f"time gap of {d[i]:.6g} s ({d[i] / period:.3g} sample periods of "
                              f"{period:.6g} s) between samples {i} and {i + 1} (t = {t[i]:.6f} s); "
                              f"{int(gap.sum())} step(s) longer than {GAP_PERIODS} periods in all",
                              "split the recording at the gap or fill it at the source (calib does not interpolate)")
-    k = np.arange(n, dtype=float)
+    k = np.concatenate([[0.0], np.cumsum(np.where(dropped, whole, 1.0))])
     k -= k.mean()
     slope = float(k @ (t - t.mean())) / float(k @ k)
     fs_clock = 1.0 / slope
@@ -198,9 +204,10 @@ def read_header(path) -> Header:
 
 
 def _header(path, nc) -> Header:
-    conv = _attr(nc, "conventions")
+    conv = conventions({k: nc.getncattr(k) for k in nc.ncattrs()})
     if conv != CONVENTIONS:
-        raise RecordingError(path, "conventions", f"global attribute is {conv!r}, expected {CONVENTIONS!r}")
+        raise RecordingError(path, "Conventions", f"global attribute names {conv or 'no format'!r}, expected "
+                             f"'{CF_VERSION} {CONVENTIONS}'", "write recordings with calib import or calib simulate")
     for dim in ("time", "axis"):
         if dim not in nc.dimensions:
             raise RecordingError(path, dim, "dimension missing")
@@ -228,7 +235,7 @@ def _header(path, nc) -> Header:
         kind = _attr(v, "sample_kind")
         if kind not in ("rate", "increment"):
             raise RecordingError(path, var, f"attribute sample_kind={kind!r}, expected 'rate' or 'increment'")
-        units = _attr(v, "units")
+        units = internal_units(_attr(v, "units"))
         allowed = UNITS[(var, kind)]
         if units not in allowed:
             raise RecordingError(path, var, f"units={units!r} not allowed for sample_kind={kind!r}",
@@ -391,6 +398,9 @@ def load(path, validate_all: bool = True) -> xr.Dataset:
         raise _unreadable(path, exc) from exc
     if "time" not in ds.coords:
         ds = ds.assign_coords(time=h.t0_s + np.arange(h.n_samples) / h.sample_rate_hz)
+    for name in ds.variables:
+        if "units" in ds[name].attrs:
+            ds[name].attrs["units"] = internal_units(ds[name].attrs["units"])
     ds.attrs["_path"] = str(path)
     return ds
 
@@ -431,7 +441,8 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
     if time is not None:
         coords["time"] = ("time", np.asarray(time, dtype=np.float64), {"units": "s", "long_name": "time from start"})
     if temperature is not None:
-        data["temperature"] = (("time",), np.asarray(temperature, dtype=np.float64), {"units": "degC"})
+        data["temperature"] = (("time",), np.asarray(temperature, dtype=np.float64),
+                               {"units": "degC", "long_name": "unit temperature"})
     if segment_index is not None:
         data["segment_index"] = (("time",), np.asarray(segment_index, dtype=np.int32),
                                  {"long_name": "segment of each sample, -1 for transitions"})
@@ -440,9 +451,11 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
                                {"units": "deg", "long_name": "table angle about the current rotation axis"})
     if segments is not None:
         nseg = len(segments["segment_kind"])
-        coords["segment"] = np.arange(nseg)
-        data["segment_kind"] = (("segment",), np.asarray(segments["segment_kind"], dtype=str))
-        data["segment_label"] = (("segment",), np.asarray(segments.get("segment_label", [""] * nseg), dtype=str))
+        coords["segment"] = ("segment", np.arange(nseg, dtype=np.int32), {"long_name": "segment number"})
+        data["segment_kind"] = (("segment",), np.asarray(segments["segment_kind"], dtype=str),
+                                {"long_name": "segment kind: static or rotation"})
+        data["segment_label"] = (("segment",), np.asarray(segments.get("segment_label", [""] * nseg), dtype=str),
+                                 {"long_name": "segment label"})
         if "rotation_axis" in segments:
             data["rotation_axis"] = (("segment", "axis"), np.asarray(segments["rotation_axis"], dtype=float),
                                      {"long_name": "rotation axis, unit vector in the body frame"})
@@ -518,12 +531,15 @@ class LongRecordingWriter:
         chunks = (min(a["chunk"], self.n), 3)
         self.va = nc.createVariable("accel", a["dtype"], ("time", "axis"), chunksizes=chunks)
         self.vg = nc.createVariable("gyro", a["dtype"], ("time", "axis"), chunksizes=chunks)
-        self.va.setncatts({"sample_kind": a["ak"], "units": a["au"], "long_name": "accelerometer triad output"})
-        self.vg.setncatts({"sample_kind": a["gk"], "units": a["gu"], "long_name": "gyroscope triad output"})
+        self.va.setncatts({"sample_kind": a["ak"], "units": CF_UNITS.get(a["au"], a["au"]),
+                           "long_name": "accelerometer triad output"})
+        self.vg.setncatts({"sample_kind": a["gk"], "units": CF_UNITS.get(a["gu"], a["gu"]),
+                           "long_name": "gyroscope triad output"})
         if self._temperature:
             self.vt = nc.createVariable("temperature", "f4", ("time",), chunksizes=(chunks[0],))
             self.vt.setncatts({"units": "degC", "long_name": "unit temperature"})
-        attrs = {"conventions": CONVENTIONS, "latitude_deg": a["lat"], "height_m": a["h"], "sample_rate_hz": a["fs"],
+        attrs = {"Conventions": f"{CF_VERSION} {CONVENTIONS}", "latitude_deg": a["lat"], "height_m": a["h"],
+                 "sample_rate_hz": a["fs"],
                  "t0_s": a["t0"], "source": a["source"], "sensor": a["sensor"]}
         attrs.update(a["extra"])
         nc.setncatts(attrs)

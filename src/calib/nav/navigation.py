@@ -3,7 +3,7 @@
 :func:`navigate_recording` reads a recording chunk by chunk (memory flat in its duration), converts the raw
 samples to SI body-frame increments, pre-integrates them to the navigation rate, navigates with the
 vertical channel held and returns the navigation errors against the stationary truth (initial position,
-zero velocity, initial attitude) as an ``xarray.Dataset`` on a time axis in hours.
+zero velocity, initial attitude) as an ``xarray.Dataset`` on a time axis in seconds from the start.
 
 Raw samples to SI increments
 ----------------------------
@@ -271,7 +271,7 @@ def errors_dataset(out, t_s, truth: NavInit, attrs=None) -> xr.Dataset:
     """Dataset of navigation results and errors from output records ``out`` (S, n, 9) or (n, 9).
 
     Angles in rad (``*_arcmin`` companions for attitude and position), velocities m/s, positions also
-    in metres (north_err_m, east_err_m); ``time`` in hours.
+    in metres (north_err_m, east_err_m); ``time`` in seconds from the start.
     """
     out = np.asarray(out)
     single = out.ndim == 2
@@ -309,8 +309,9 @@ def errors_dataset(out, t_s, truth: NavInit, attrs=None) -> xr.Dataset:
     put("east_err_m", (out[..., 7] - truth.lon) * (r_n + truth.h) * math.cos(truth.lat), "m", "east position error")
     for name in ("pitch_err", "roll_err", "yaw_err", "lat_err", "lon_err"):
         put(name + "_arcmin", v[name][1] / ARCMIN, "arcmin", v[name][2]["long_name"])
-    time = ("time", np.asarray(t_s, float) / 3600.0, {"units": "h", "long_name": "time from start"})
-    ds = xr.Dataset(v, coords={"time": time, "stream": np.arange(out.shape[0])}, attrs=dict(attrs or {}))
+    time = ("time", np.asarray(t_s, float), {"units": "s", "long_name": "time from start"})
+    ds = xr.Dataset(v, coords={"time": time, "stream": ("stream", np.arange(out.shape[0]), {"long_name": "stream"})},
+                    attrs=dict(attrs or {}))
     ds.attrs.update({"truth_latitude_rad": truth.lat, "truth_longitude_rad": truth.lon, "truth_height_m": truth.h,
                      "truth_pitch_rad": p0, "truth_roll_rad": r0, "truth_yaw_rad": y0,
                      "attitude_convention": "C_b^n = Rz(yaw) Rx(pitch) Ry(roll), ENU"})

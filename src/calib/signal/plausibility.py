@@ -34,6 +34,7 @@ import xarray as xr
 from calib.core import earth
 from calib.core.errors import InputError, ResultCheckError
 from calib.io import recording
+from calib.io.netcdf import conventions
 
 ABSURD_ACCEL_G = 1000.0
 ABSURD_GYRO_DEG_S = 1.0e4
@@ -333,7 +334,7 @@ def check_calibration_file(path) -> dict:
     fix = "give the default_calibration.nc written by 'calib calibrate --out DIR'"
     try:
         with xr.open_dataset(path, engine="netcdf4") as d:
-            kind = ("a recording" if d.attrs.get("conventions") == recording.CONVENTIONS else
+            kind = ("a recording" if conventions(d.attrs) == recording.CONVENTIONS else
                     "a field calibration ('calib fieldcal --out')" if "value" in d and "static_intervals" in d else
                     None)
             vecs = {s: np.asarray(d[s].values) for s in ("accel", "gyro") if s in d and d[s].dims == ("parameter",)}

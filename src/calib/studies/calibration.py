@@ -78,13 +78,16 @@ def _runs(problem, method, ccfg, seed0, progress=None):
 
 def _run_dataset(results, L, hist, x, names, sensor, method, objective, truth=None):
     ds = xr.Dataset(
-        {"estimate": (("run", "parameter"), x), "L": (("run",), L, {"long_name": objective}),
+        {"estimate": (("run", "parameter"), x, {"long_name": f"{sensor} K, E, b estimated by {method} (Liu 2021 "
+                                                            "eq. 25 order)"}),
+         "L": (("run",), L, {"long_name": objective}),
          "history": (("run", "generation"), hist, {"long_name": f"best {objective} per generation"})},
-        coords={"run": np.arange(len(L)), "parameter": list(names), "generation": np.arange(hist.shape[1])},
+        coords={"run": ("run", np.arange(len(L)), {"long_name": "independent run"}), "parameter": list(names),
+                "generation": ("generation", np.arange(hist.shape[1]), {"long_name": "optimizer generation"})},
         attrs={"sensor": sensor, "method": method, "objective": objective,
                "on_bound": json.dumps(sorted({p for r in results for p in (r.on_bound or [])}))})
     if truth is not None:
-        ds["truth"] = (("parameter",), truth)
+        ds["truth"] = (("parameter",), truth, {"long_name": f"{sensor} K, E, b of the simulated unit"})
     return ds
 
 
@@ -241,13 +244,15 @@ def _noise_products(inp, out, prov):
     fig, axs = plt.subplots(1, 2, figsize=(9, 3.5))
     for ax, (sensor, res) in zip(axs, (("accel", inp.accel_noise), ("gyro", inp.gyro_noise))):
         tau = np.asarray(res.tau)
-        coords[f"tau_{sensor}"] = (f"tau_{sensor}", tau, {"units": "s"})
+        coords[f"tau_{sensor}"] = (f"tau_{sensor}", tau, {"units": "s", "long_name": f"{sensor} averaging time"})
         data[f"adev_{sensor}"] = ((f"tau_{sensor}", "axis"), np.asarray(res.adev).reshape(len(tau), -1)[:, :3],
-                                  {"units": res.unit or "count s-1"})
+                                  {"units": res.unit or "count s-1", "long_name": f"{sensor} Allan deviation"})
         lo = np.asarray(res.lo).reshape(len(tau), -1)[:, :3]
         hi = np.asarray(res.hi).reshape(len(tau), -1)[:, :3]
-        data[f"adev_{sensor}_lo"] = ((f"tau_{sensor}", "axis"), lo)
-        data[f"adev_{sensor}_hi"] = ((f"tau_{sensor}", "axis"), hi)
+        data[f"adev_{sensor}_lo"] = ((f"tau_{sensor}", "axis"), lo, {"units": res.unit or "count s-1",
+                                     "long_name": f"{sensor} Allan deviation, lower end of the 95 % interval"})
+        data[f"adev_{sensor}_hi"] = ((f"tau_{sensor}", "axis"), hi, {"units": res.unit or "count s-1",
+                                     "long_name": f"{sensor} Allan deviation, upper end of the 95 % interval"})
         ad = np.asarray(res.adev).reshape(len(tau), -1)[:, :3]
         for j in range(ad.shape[1]):
             ax.loglog(tau, ad[:, j], "o-", ms=3, label="xyz"[j])
@@ -316,11 +321,13 @@ def _fig_history(path, hist, title, ylabel):
 
     fig, ax = plt.subplots(figsize=(6, 3.6))
     g = np.arange(hist.shape[1])
-    for h in hist:
-        ax.semilogy(g, h, lw=0.7)
+    for i, h in enumerate(hist):
+        ax.plot(g, h, lw=0.7, label=f"one line per run ({len(hist)} runs)" if i == 0 else "_nolegend_")
+    figures.auto_log(ax, hist)
     ax.set_xlabel("generation")
     ax.set_ylabel(ylabel)
     ax.set_title(title + f" ({len(hist)} runs)")
+    ax.legend(fontsize=7)
     fig.tight_layout()
     figures.save(fig, path)
 
@@ -434,10 +441,11 @@ def write_default(default, json_path, nc_path, prov, true_vec):
     write_text(json_path, json.dumps(out, indent=2))
     coords = {"parameter": list(PARAM_NAMES)}
     data = {"accel": (("parameter",), vec_a, {"long_name": "accelerometer K, E, b in the body frame"}),
-            "accel_cov_lin": (("p1", "p2"), acc.cov)}
+            "accel_cov_lin": (("p1", "p2"), acc.cov, {"long_name": "covariance of the accelerometer parameters "
+                                                                    "(linearised at the optimum)"})}
     if gyro is not None:
         data["gyro"] = (("parameter",), gyro.paper_vector(), {"long_name": "gyro K, E, b (eq. 25), body frame"})
-        data["gyro_cov"] = (("q1", "q2"), gyro.cov)
+        data["gyro_cov"] = (("q1", "q2"), gyro.cov, {"long_name": "covariance of the gyro parameters"})
     write_netcdf(xr.Dataset(data, coords=coords, attrs={"frame": default["frame_note"],
                                                         "accel_units": "count s-1 per g", "gyro_units": "count s-1 per deg/h"}),
                  nc_path, prov)
@@ -585,6 +593,7 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
                     fmt="o", color="C0", label="with long static record" if main == "with" else "segment-only sigma")
         ax.axhspan(-1, 1, color="C2", alpha=0.15)
         ax.set_xticks(x, names[sensor], rotation=60, fontsize=7)
+        ax.set_xlabel("parameter")
         ax.set_title(title)
         ax.legend(fontsize=7)
     axs[0].set_ylabel("z = (estimate − truth) / SE: mean ± std")

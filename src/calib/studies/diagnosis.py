@@ -93,6 +93,7 @@ def proof_dataset(out: dict) -> xr.Dataset:
             ints["n_found"][i, j] = len(x["found"])
             ints["verdict"][i, j] = VERDICTS.index(x["verdict"]) if x.get("verdict") in VERDICTS else -1
     kinds = [proof.PROOF_SESSIONS[s][0] for s in sessions]
+    yes_no = {"flag_values": np.array([0, 1], dtype=np.int8), "flag_meanings": "false true"}
     ds = xr.Dataset(
         {
             "chi2_before": (("session", "seed"), var["chi2_before"],
@@ -107,28 +108,33 @@ def proof_dataset(out: dict) -> xr.Dataset:
             "correct": (("session", "seed"), ints["correct"],
                         {"long_name": "diagnosis correct (null: nothing found; single: the injected effect "
                                       "named, alone or in its alias group; confounded: never one effect)",
-                         "flag_values": "0 1"}),
-            "named_exactly": (("session", "seed"), ints["named_exactly"], {"flag_values": "0 1"}),
+                         **yes_no}),
+            "named_exactly": (("session", "seed"), ints["named_exactly"],
+                              {"long_name": "the injected effect named exactly (not only its alias group)", **yes_no}),
             "false_discovery": (("session", "seed"), ints["false_discovery"],
-                                {"long_name": "a finding whose alias group holds no injected effect",
-                                 "flag_values": "0 1"}),
+                                {"long_name": "a finding whose alias group holds no injected effect", **yes_no}),
             "n_found": (("session", "seed"), ints["n_found"], {"long_name": "number of terms found"}),
             "verdict": (("session", "seed"), ints["verdict"],
-                        {"flag_values": "0 1 2", "flag_meanings": " ".join(VERDICTS)}),
+                        {"long_name": "verdict of the diagnosis (-1: none)",
+                         "flag_values": np.arange(len(VERDICTS), dtype=np.int8), "flag_meanings": " ".join(VERDICTS)}),
         },
-        coords={"session": sessions, "seed": np.asarray(seeds, dtype=np.int64),
-                "kind": ("session", kinds)},
+        coords={"session": ("session", sessions, {"long_name": "proof session"}),
+                "seed": ("seed", np.asarray(seeds, dtype=np.int64), {"long_name": "noise seed"}),
+                "kind": ("session", kinds, {"long_name": "kind of proof session"})},
         attrs={"title": "calib mismatch diagnosis: concealed-effect proof, one row per noise seed",
                "method": out["method"]},
     )
     pts = [(nm, q) for nm, p in (out.get("power") or {}).items() for q in p["points"]]
     if pts:
-        ds = ds.assign_coords(power_point=np.arange(len(pts)))
-        ds["power_session"] = ("power_point", [nm for nm, _ in pts])
+        ds = ds.assign_coords(power_point=("power_point", np.arange(len(pts), dtype=np.int32),
+                                           {"long_name": "point of the detection-power curves"}))
+        ds["power_session"] = ("power_point", [nm for nm, _ in pts], {"long_name": "proof session"})
         ds["power_scale"] = ("power_point", np.array([q["scale"] for _, q in pts]),
                              {"long_name": "injected magnitude as a fraction of the proof magnitude"})
-        ds["power_detected"] = ("power_point", np.array([q["detected"] for _, q in pts], dtype=np.int32))
-        ds["power_n"] = ("power_point", np.array([q["n"] for _, q in pts], dtype=np.int32))
+        ds["power_detected"] = ("power_point", np.array([q["detected"] for _, q in pts], dtype=np.int32),
+                                {"long_name": "seeds in which the effect was detected"})
+        ds["power_n"] = ("power_point", np.array([q["n"] for _, q in pts], dtype=np.int32),
+                         {"long_name": "seeds run"})
     return ds
 
 

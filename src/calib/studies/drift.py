@@ -128,14 +128,16 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
     ds = xr.Dataset(
         {
             "estimate": (("test", "axis"), est, {"units": "deg h-1", "long_name": "PSOBE gyro-drift estimate"}),
-            "J_history": (("test", "generation"), hist, {"units": "J of He 2019 eq. 18",
-                                                         "long_name": "J of the global best per generation"}),
+            "J_history": (("test", "generation"), hist, {"long_name": "J (He 2019 eq. 18) of the global best per "
+                                                                      "generation"}),
             "pinned": (("test", "axis"), pinned.astype(np.int8), {"long_name": "best particle on a range bound"}),
-            "truth": (("axis",), truth, {"units": "deg h-1"}),
+            "truth": (("axis",), truth, {"units": "deg h-1", "long_name": "simulated gyro drift"}),
             "crb": (("axis",), crb_deg_h, {"units": "deg h-1", "long_name": "Cramer-Rao bound, 1 sigma"}),
-            "baseline": (("estimator", "axis"), np.array([base[m] for m in base]), {"units": "deg h-1"}),
+            "baseline": (("estimator", "axis"), np.array([base[m] for m in base]),
+                         {"units": "deg h-1", "long_name": "gyro drift by the baseline estimators"}),
         },
-        coords={"test": np.arange(1, n_tests + 1), "axis": AXES, "generation": np.arange(G + 1),
+        coords={"test": ("test", np.arange(1, n_tests + 1), {"long_name": "repeated PSOBE test"}), "axis": AXES,
+                "generation": ("generation", np.arange(G + 1), {"long_name": "PSO generation"}),
                 "estimator": list(base)},
         attrs={"position_unit": dcfg["position_unit"], "weights": json.dumps(dcfg["weights"]),
                "initial_condition": cond, "window_h": dcfg["window_h"], "pso_variant": settings.variant,
@@ -182,6 +184,7 @@ def _write_baselines(path, base, truth, crb):
 
 def _fig2(path, est, truth, crb):
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     fig, axs = plt.subplots(3, 1, figsize=(6.5, 6.5), sharex=True)
     k = np.arange(1, len(est) + 1)
@@ -192,6 +195,7 @@ def _fig2(path, est, truth, crb):
         ax.set_ylabel(f"ε_{AXES[i]} [°/h]")
     axs[0].legend(fontsize=7, loc="best")
     axs[-1].set_xlabel("test")
+    axs[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.suptitle("He et al. (2019) Fig. 2: gyro drift estimated in each PSOBE test")
     fig.tight_layout()
     figures.save(fig, path)
@@ -201,7 +205,8 @@ def _fig3(path, hist, unit):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.semilogy(np.arange(len(hist)), hist, "o-", ms=3)
+    ax.plot(np.arange(len(hist)), hist, "o-", ms=3)
+    figures.auto_log(ax, hist)
     ax.set_xlabel("generation")
     ax.set_ylabel(f"J of eq. 18 (position in {unit})")
     ax.set_title("He et al. (2019) Fig. 3: J of the global best, test 1")
@@ -239,21 +244,30 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
         outs.append(o)
         bar(i0 + len(acc))
     out = np.concatenate(outs, axis=1)
-    t_h = np.arange(1, out.shape[1] + 1) * out_every * dt_nav / 3600.0
+    t_s = np.arange(1, out.shape[1] + 1) * out_every * dt_nav
     wrap = lambda a: (a + math.pi) % (2 * math.pi) - math.pi  # noqa: E731
     arcmin = 180.0 / math.pi * 60.0
     r_m, r_n = earth.radii(lat0)
     data = {
-        "pitch_err": (("stream", "time"), arcmin * wrap(out[..., 0] - att[0]), {"units": "arcmin"}),
-        "roll_err": (("stream", "time"), arcmin * wrap(out[..., 1] - att[1]), {"units": "arcmin"}),
-        "yaw_err": (("stream", "time"), arcmin * wrap(out[..., 2] - att[2]), {"units": "arcmin"}),
-        "vE_err": (("stream", "time"), out[..., 3], {"units": "m s-1"}),
-        "vN_err": (("stream", "time"), out[..., 4], {"units": "m s-1"}),
-        "lon_err": (("stream", "time"), arcmin * (out[..., 7] - lon0), {"units": "arcmin"}),
-        "lat_err": (("stream", "time"), arcmin * (out[..., 6] - lat0), {"units": "arcmin"}),
-        "compensation": (("stream", "axis"), streams / DEG_PER_H, {"units": "deg h-1"}),
+        "pitch_err": (("stream", "time"), arcmin * wrap(out[..., 0] - att[0]),
+                     {"units": "arcmin", "long_name": "pitch error (navigated - true)"}),
+        "roll_err": (("stream", "time"), arcmin * wrap(out[..., 1] - att[1]),
+                    {"units": "arcmin", "long_name": "roll error (navigated - true)"}),
+        "yaw_err": (("stream", "time"), arcmin * wrap(out[..., 2] - att[2]),
+                   {"units": "arcmin", "long_name": "yaw error (navigated - true)"}),
+        "vE_err": (("stream", "time"), out[..., 3],
+                  {"units": "m s-1", "long_name": "east velocity error"}),
+        "vN_err": (("stream", "time"), out[..., 4],
+                  {"units": "m s-1", "long_name": "north velocity error"}),
+        "lon_err": (("stream", "time"), arcmin * (out[..., 7] - lon0),
+                   {"units": "arcmin", "long_name": "longitude error"}),
+        "lat_err": (("stream", "time"), arcmin * (out[..., 6] - lat0),
+                   {"units": "arcmin", "long_name": "latitude error"}),
+        "compensation": (("stream", "axis"), streams / DEG_PER_H, {"units": "deg h-1",
+                                                                   "long_name": "gyro drift compensated"}),
     }
-    ds = xr.Dataset(data, coords={"stream": names, "time": ("time", t_h, {"units": "h"}), "axis": AXES},
+    ds = xr.Dataset(data, coords={"stream": names, "axis": AXES,
+                                  "time": ("time", t_s, {"units": "s", "long_name": "time from start"})},
                     attrs={"frame": "errors = computed - true; attitude C_b^n = Rz(yaw) Rx(pitch) Ry(roll), ENU",
                            "nav_rate_hz": nav["nav_rate_hz"], "vertical_channel": "held at the initial height"})
     write_netcdf(ds, out_nc, prov)
@@ -268,7 +282,7 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
         # at the end; its secular part grows at the drift component along the Earth's axis
 
         ab = np.asarray(session.get("accel_bias_m_s2", [0.0, 0.0, 0.0]), float)
-        T_end = t_h[-1] * 3600.0
+        T_end = t_s[-1]
         resp = errormodel.error_response(np.array([0.0, T_end]), lat0, C.T @ resid, ab, C, h.height_m,
                                          drift_coupling=True)
         pred = float(resp["lon_err"].values[-1]) * arcmin
@@ -280,7 +294,7 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
                          "max_abs_vE_m_s": float(np.abs(ds["vE_err"].values[s]).max()),
                          "max_abs_vN_m_s": float(np.abs(ds["vN_err"].values[s]).max())}
     arw, white = noise_psd(session)
-    sig = drift.longitude_noise_sigma(t_h[-1] * 3600.0, lat0, C, arw, white, h.dt) * arcmin
+    sig = drift.longitude_noise_sigma(t_s[-1], lat0, C, arw, white, h.dt) * arcmin
     for name in names:
         m = metrics[name]
         m["lon_err_noise_sigma_arcmin"] = sig
@@ -301,7 +315,7 @@ def _fig4(path, ds):
               ("vE_err", "east velocity [m/s]"), ("vN_err", "north velocity [m/s]"),
               ("lon_err", "longitude [′]"), ("lat_err", "latitude [′]")]
     fig, axs = plt.subplots(4, 2, figsize=(9, 9), sharex=True)
-    t = ds["time"].values
+    t = ds["time"].values / 3600.0
     for ax, (var, lab) in zip(axs.flat, panels):
         for s, color in zip(ds["stream"].values[:2], ("C0", "C3")):
             ax.plot(t, ds[var].sel(stream=s).values, color=color, lw=0.8,
@@ -362,10 +376,14 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
     names = list(est)
     z = np.array([(est[m] - truth) / crb for m in names])  # (method, seed, axis)
     lo, hi = binomial_band(n_seeds)
-    ds = xr.Dataset({"estimate": (("estimator", "seed", "axis"), np.array([est[m] for m in names]), {"units": "deg h-1"}),
+    ds = xr.Dataset({"estimate": (("estimator", "seed", "axis"), np.array([est[m] for m in names]),
+                                  {"units": "deg h-1", "long_name": "gyro drift estimate"}),
                      "z": (("estimator", "seed", "axis"), z, {"long_name": "(estimate - truth) / Cramer-Rao bound"}),
-                     "crb": (("axis",), crb, {"units": "deg h-1"}), "truth": (("axis",), truth, {"units": "deg h-1"})},
-                    coords={"estimator": names, "seed": np.array([seeds.child_seed(seed0, "session", k) for k in range(n_seeds)], dtype=np.int64), "axis": AXES},
+                     "crb": (("axis",), crb, {"units": "deg h-1", "long_name": "1-sigma bound (Kalman covariance)"}),
+                     "truth": (("axis",), truth, {"units": "deg h-1", "long_name": "simulated gyro drift"})},
+                    coords={"estimator": names, "axis": AXES,
+                            "seed": ("seed", np.array([seeds.child_seed(seed0, "session", k) for k in range(n_seeds)],
+                                                      dtype=np.int64), {"long_name": "noise seed"})},
                     attrs={"initial_condition": cond, "window_h": dcfg["window_h"]})
     write_netcdf(ds, out_nc, prov)
     rows = ["estimator,axis,mean_z,std_z,within_2_bounds,n_seeds,band99_low,band99_high,consistent"]
@@ -390,6 +408,7 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
             ax.hist(z[i, :, j], bins=bins, density=True, alpha=0.5, label=m)
         ax.plot(xs, np.exp(-xs**2 / 2) / math.sqrt(2 * math.pi), "k", lw=1, label="N(0, 1)")
         ax.set_xlabel(f"z of ε_{AXES[j]}")
+    axs[0].set_ylabel("probability density")
     axs[0].legend(fontsize=7)
     fig_.suptitle(f"Drift error in Cramér–Rao bounds over {n_seeds} noise seeds")
     fig_.tight_layout()

@@ -81,12 +81,19 @@ def _fig10(path, res):
     import matplotlib.pyplot as plt
 
     fig, axs = plt.subplots(2, 2, figsize=(9, 6), sharex=True)
-    t = res["time"].values
+    t = res["time"].values / 3600.0
     panels = [("vE_err", "east velocity error [m/s]"), ("vN_err", "north velocity error [m/s]"),
               ("lat_err_arcmin", "latitude error [′]"), ("lon_err_arcmin", "longitude error [′]")]
+    names = [str(m) for m in res["calibration"].values]
     for ax, (v, lab) in zip(axs.flat, panels):
-        for m in res["calibration"].values:
-            ax.plot(t, res[v].sel(calibration=m).values, lw=0.9, label=str(m))
+        for m in names:
+            ax.plot(t, res[v].sel(calibration=m).values, lw=1.4 if m == "default" else 0.9, label=m,
+                    zorder=3 if m == "default" else 2)
+        if "default" in names:   # keep the default calibration's curve readable beside much larger ones
+            d = float(np.nanmax(np.abs(res[v].sel(calibration="default").values)))
+            if d > 0 and float(np.nanmax(np.abs(res[v].values))) > 20 * d:
+                ax.set_yscale("symlog", linthresh=1.2 * d)
+                lab += "\n(linear within ±" + f"{1.2 * d:.2g}, log beyond)"
         ax.set_ylabel(lab)
     for ax in axs[-1]:
         ax.set_xlabel("time [h]")
