@@ -6,6 +6,7 @@ import math
 from pathlib import Path
 
 import matplotlib.pyplot as plt
+import numpy as np
 
 from calib.diagnosis.geometry import AXES, ROWS, SENSORS
 from calib.diagnosis.problem import REPORT_FORMAT, Problem
@@ -140,23 +141,34 @@ def residual_figure(prob: Problem, fits, path, title=""):
         name = "norm residual" if prob.kind == "norm" else f"{SENSORS[si]} {ROWS[r]}"
         ax.set_ylabel(f"{name}\n(residual / sigma)")
     axs[0, 0].legend(ncol=6, fontsize=7, loc="upper right")
-    axs[-1, 0].set_xticks(range(len(labels)))
-    axs[-1, 0].set_xticklabels(labels, rotation=90, fontsize=6)
+    step = max(1, int(np.ceil(len(labels) / 40)))          # at most ~40 readable tick labels
+    ticks = list(range(0, len(labels), step))
+    axs[-1, 0].set_xticks(ticks)
+    axs[-1, 0].set_xticklabels([labels[i] for i in ticks], rotation=90, fontsize=7)
+    axs[-1, 0].set_xlabel("segment" + (f" (every {step}th labelled)" if step > 1 else ""))
     fig.suptitle(title or "residuals before (open) and after (filled) the selected terms")
     fig.tight_layout()
     return figures.save(fig, path)
 
 
 def allan_figure(prob: Problem, path):
-    fig, axs = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, s in zip(axs, SENSORS):
-        A = (prob.noise.allan.get(s) if prob.noise is not None else
-             (prob.norm_allan if s == "accel" else None))
-        if A is None:
-            ax.set_visible(False)
-            continue
-        for a in range(3):
-            ax.loglog(A.tau, A.adev[:, a], "o-", ms=3, label=f"{AXES[a]}")
+    """Allan deviation of the static segments per sensor, with its confidence band; only the sensors the
+    diagnosis has (no blank panel); taus with fewer than 2 equivalent degrees of freedom are left out (their
+    interval is wider than the plot)."""
+    have = [(s, A) for s in SENSORS
+            for A in [prob.noise.allan.get(s) if prob.noise is not None else
+                      (prob.norm_allan if s == "accel" else None)] if A is not None]
+    fig, axs = plt.subplots(1, max(len(have), 1), figsize=(5 * max(len(have), 1), 4), squeeze=False)
+    if not have:
+        axs[0, 0].axis("off")
+        axs[0, 0].text(0.5, 0.5, "no static segments: no Allan deviation", ha="center", va="center")
+    for ax, (s, A) in zip(axs[0], have):
+        keep = np.asarray(A.edf) >= 2.0
+        ncol = np.asarray(A.adev).shape[1]
+        for a in range(min(3, ncol)):
+            line, = ax.loglog(A.tau[keep], A.adev[keep, a], "o-", ms=3, label=f"{AXES[a]}" if ncol > 1 else s)
+            ax.fill_between(A.tau[keep], A.lo[keep, a], A.hi[keep, a], color=line.get_color(), alpha=0.15,
+                            label=f"{int(round(100 * A.confidence))} % interval" if a == 0 else "_nolegend_")
         ax.set_xlabel("tau [s]")
         ax.set_ylabel(f"Allan deviation [{A.unit}]")
         ax.set_title(f"{s} (pooled static segments)")

@@ -7,6 +7,7 @@ temporary name and renames.
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import matplotlib
@@ -34,10 +35,109 @@ _META = {
 }
 
 
+#: ``CALIB_FIGURE_CHECK=strict``: :func:`save` refuses a figure that fails :func:`inspect` (the CI workflow
+#: runs so); ``warn`` (default): the problems are printed; ``off``: not looked at.
+CHECK_ENV = "CALIB_FIGURE_CHECK"
+
+
+class FigureCheckError(ValueError):
+    """A figure with empty panels, unlabelled axes or several series without a legend."""
+
+
+def auto_log(ax, values, which="y", min_ratio=10.0) -> str:
+    """Log scale on ``which`` axis only when the positive ``values`` span at least ``min_ratio`` (a log axis over
+    206..213 has no tick labels and hides nothing); returns the scale chosen."""
+    import numpy as np
+
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    scale = "log" if v.size and v.min() > 0 and v.max() / v.min() >= min_ratio else "linear"
+    (ax.set_yscale if which == "y" else ax.set_xscale)(scale)
+    return scale
+
+
+def _has_data(ax) -> bool:
+    for line in ax.get_lines():
+        if line.get_visible() and len(line.get_xdata()) > 0 and not _is_reference_line(line):
+            return True
+    for c in ax.collections:
+        if c.get_visible() and (len(c.get_offsets()) > 0 or len(c.get_paths()) > 0):
+            return True
+    return bool(ax.images) or any(p.get_visible() for p in ax.patches) or bool(ax.tables)
+
+
+def _is_reference_line(line) -> bool:
+    """axhline/axvline: drawn in axes coordinates along one direction (a reference, not a data series)."""
+    x, y = line.get_xdata(), line.get_ydata()
+    return len(x) == 2 and (tuple(x) == (0, 1) or tuple(y) == (0, 1)) and line.get_transform() != line.axes.transData
+
+
+def _series(ax):
+    arts = [a for a in ax.get_lines() if a.get_visible() and len(a.get_xdata()) > 1 and not _is_reference_line(a)]
+    arts += [c for c in ax.collections if c.get_visible() and len(c.get_offsets()) > 1]
+    return arts
+
+
+def _label_of(ax, which) -> bool:
+    """The axis has a label, or a sharing neighbour / the figure carries one for it."""
+    get = (lambda a: a.get_xlabel()) if which == "x" else (lambda a: a.get_ylabel())
+    if get(ax).strip():
+        return True
+    shared = ax.get_shared_x_axes() if which == "x" else ax.get_shared_y_axes()
+    if any(get(a).strip() for a in shared.get_siblings(ax)):
+        return True
+    sup = getattr(ax.figure, "_supxlabel" if which == "x" else "_supylabel", None)
+    return bool(sup is not None and sup.get_text().strip())
+
+
+def inspect(fig) -> list[str]:
+    """What a reader would miss in ``fig``: empty panels (switch them off instead), axes without a label, several
+    labelled series without a legend, several unlabelled series in a panel of a figure with no legend and no
+    colour bar, a log axis over less than a factor of 2."""
+    problems = []
+    fig_legend = bool(fig.legends)
+    legend_texts = {t.get_text() for lg in list(fig.legends) + [a.get_legend() for a in fig.axes if a.get_legend()]
+                    for t in lg.get_texts()}
+    colorbar = any(a.get_label() == "<colorbar>" for a in fig.axes)
+    for i, ax in enumerate(fig.axes):
+        if not ax.get_visible() or not ax.axison or ax.get_label() == "<colorbar>":
+            continue
+        name = f"panel {i + 1}" + (f" ('{ax.get_title()}')" if ax.get_title() else "")
+        if not _has_data(ax):
+            problems.append(f"{name} is empty (draw in it or switch it off)")
+            continue
+        for which in ("x", "y"):
+            if not _label_of(ax, which):
+                problems.append(f"{name} has no {which} label")
+        series = _series(ax)
+        labelled = {a.get_label() for a in series if not str(a.get_label()).startswith("_")}
+        has_legend = ax.get_legend() is not None or fig_legend
+        if len(labelled) >= 2 and not has_legend and not labelled <= legend_texts:
+            problems.append(f"{name} draws {len(labelled)} labelled series without a legend")
+        if len(series) >= 2 and not labelled and not has_legend and not legend_texts and not colorbar and not ax.texts:
+            problems.append(f"{name} draws {len(series)} series, none labelled and no legend")
+        for which, lim in (("x", ax.get_xlim()), ("y", ax.get_ylim())):
+            scale = ax.get_xscale() if which == "x" else ax.get_yscale()
+            lo, hi = sorted(lim)
+            if scale == "log" and lo > 0 and hi / lo < 2.0:
+                problems.append(f"{name}: log {which} axis over {lo:.4g}..{hi:.4g} (less than a factor 2: use linear)")
+    return problems
+
+
 def save(fig, path) -> Path:
-    """Save ``fig`` to ``path`` (format from the suffix) deterministically and atomically; closes it."""
+    """Save ``fig`` to ``path`` (format from the suffix) deterministically and atomically; closes it.
+
+    The figure is first looked at by :func:`inspect` (see :data:`CHECK_ENV`)."""
     path = Path(path)
     suffix = path.suffix.lower()
+    mode = os.environ.get(CHECK_ENV, "warn").lower()
+    if mode != "off":
+        problems = inspect(fig)
+        if problems and mode == "strict":
+            plt.close(fig)
+            raise FigureCheckError(f"figure {path.name}: " + "; ".join(problems))
+        for p in problems:
+            print(f"figure {path.name}: {p}")
     try:
         with atomic_path(path, suffix=suffix) as tmp, plt.rc_context(STYLE):
             fig.savefig(tmp, format=suffix[1:], metadata=_META.get(suffix))
