@@ -138,7 +138,7 @@ def cmd_simulate(a):
         if a.hours is not None:
             c["duration_h"] = a.hours
         stages.simulate_static_check(c, cfg["calibration_session"], cfg["site"], seed, a.out, truth)
-    print(f"wrote {a.out} (truth in {truth})")
+    emit(f"wrote {a.out} (truth in {truth})")
 
 
 def _check_disk(out, hours, fs):
@@ -157,15 +157,15 @@ def cmd_import(a):
     load_mapping(a.settings, "import settings file")   # missing, folder, malformed YAML: refused with the line
     _output_file(a.out, "recording")                     # an output folder is never created silently
     out = importers.import_recording(importers.load_settings(a.settings), a.out)
-    print(f"wrote {out}")
+    emit(f"wrote {out}")
 
 
 def cmd_validate(a):
     h, pl = _recording(a.recording, a.force)
-    print(f"{a.recording}: valid calib-recording-1, {h.n_samples} samples at {h.sample_rate_hz} Hz "
+    emit(f"{a.recording}: valid calib-recording-1, {h.n_samples} samples at {h.sample_rate_hz} Hz "
           f"({h.duration_s / 3600:.3f} h), latitude {h.latitude_deg} deg; accel {h.accel_kind} [{h.accel_units}], "
           f"gyro {h.gyro_kind} [{h.gyro_units}]")
-    print(f"{a.recording}: plausible: {pl.describe()}")
+    emit(f"{a.recording}: plausible: {pl.describe()}")
 
 
 def cmd_calibrate(a):
@@ -185,6 +185,7 @@ def cmd_calibrate(a):
     calibration_study.run_study(a.recording, a.truth, a.out, cc, cfg["seeds"]["calibration"],
                                 noise_record=a.noise_record)
     plausibility.check_calibration_result(Path(a.out) / "default_calibration.nc")
+    emit(f"wrote {a.out}")
 
 
 def cmd_fieldcal(a):
@@ -201,7 +202,7 @@ def cmd_fieldcal(a):
     if a.out:
         _output_file(a.out, "calibration")
     res = fieldcal.fieldcal_recording(a.recording, settings)
-    print(json.dumps(res.summary(), indent=2, default=str))
+    emit(json.dumps(res.summary(), indent=2, default=str))
     if a.out:
         write_netcdf(res.to_dataset(), a.out)
     plausibility.check_fieldcal_result(res, h.accel_units == "count", h.gyro_units == "count", a.out or a.recording)
@@ -219,7 +220,7 @@ def cmd_navigate(a):
     _output_file(a.out, "navigation output")
     nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
     navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs")
-    print(f"wrote {a.out}")
+    emit(f"wrote {a.out}")
 
 
 def cmd_diagnose(a):
@@ -235,7 +236,7 @@ def cmd_diagnose(a):
         _diagnose_refusal(a.recording, settings, a.out, exc)
         raise
     rep = diagnose(a.recording, settings, out_dir=a.out)
-    print(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
+    emit(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
     return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 3)   # exit code: 3 inconclusive
 
 
@@ -304,11 +305,33 @@ def _internal_error(name, exc) -> int:
     return EXIT_INTERNAL
 
 
+def emit(text) -> None:
+    """The promised output of a sub-command (a summary, a verdict, the path written): the only thing on
+    standard output. Everything else a command prints while it works goes to standard error (or nowhere
+    with ``--quiet``)."""
+    print(text, file=_STDOUT[0] or sys.stdout, flush=True)
+
+
+_STDOUT = [None]
+
+
+def _one_line_warning(message, category, filename, lineno, line=None):
+    return f"warning: {' '.join(str(message).split())}\n"
+
+
 def _dispatch(a) -> int:
     """Run the sub-command and map every outcome to the exit-code contract (calib.core.errors.EXIT_CODES)."""
+    import warnings
+
+    from calib.core import progress
+
     name = f"calib {a.cmd}"
+    progress.set_quiet(getattr(a, "quiet", False))
+    warnings.formatwarning = _one_line_warning
+    _STDOUT[0] = sys.stdout
+    chatter = open(os.devnull, "w") if getattr(a, "quiet", False) else sys.stderr
     try:
-        with _signals():
+        with _signals(), contextlib.redirect_stdout(chatter):
             code = a.fn(a)
         return code or 0
     except KeyboardInterrupt as exc:
@@ -333,12 +356,18 @@ def _dispatch(a) -> int:
         return EXIT_INPUT
     except Exception as exc:  # noqa: BLE001 - anything else is a bug: one line, the traceback in a log
         return _internal_error(name, exc)
+    finally:
+        _STDOUT[0] = None
+        if chatter is not sys.stderr:
+            chatter.close()
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(prog="calib", description=__doc__, epilog=EPILOG,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"calib {__version__}")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress and no informational lines (errors, warnings and the result stay)")
     sub = p.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("simulate", help="synthetic sessions (data stage)")
     s.add_argument("kind", choices=["calibration", "navigation", "static_check"])
