@@ -8,7 +8,7 @@ min_version("9.0")
 configfile: "config/config.yaml"
 
 
-validate(config, "workflow/schemas/config.schema.yaml")
+validate(config, "src/calib/resources/config.schema.yaml")  # package data: the CLI reads the same file
 
 
 report: "workflow/report/workflow.rst"

@@ -103,9 +103,12 @@ def test_user_errors_print_no_traceback_on_the_terminal(tmp_path):
     assert r.returncode == 2 and "is a folder" in r.stderr and "Traceback" not in r.stderr
     r = calib("navigate", tmp_path / "x.nc", "--out", tmp_path / "o.nc", "--nav-rate", "0")
     assert r.returncode == 2 and "--nav-rate must be positive" in r.stderr and "Traceback" not in r.stderr
-    r = calib("simulate", "calibration", tmp_path / "x.nc", cwd=tmp_path)
+    r = calib("simulate", "calibration", tmp_path / "x.nc", "--config", tmp_path / "missing.yaml")
     assert r.returncode == 2 and "config file not found" in r.stderr and "Traceback" not in r.stderr
     assert list(tmp_path.iterdir()) == []
+    # the default config is the source tree's, whatever the working directory
+    r = calib("simulate", "calibration", tmp_path / "y.nc", cwd=tmp_path)
+    assert r.returncode == 0 and r.stdout.startswith(f"wrote {tmp_path / 'y.nc'}"), r.stderr
 
 
 @pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])

@@ -15,7 +15,7 @@ from calib.studies import sweep_summary, sweeps
 
 ROOT = Path(__file__).resolve().parents[2]
 SWEEP_SCHEMA = ROOT / "workflow" / "schemas" / "sweep.schema.yaml"
-STUDY_SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
+STUDY_SCHEMA = ROOT / "src" / "calib" / "resources" / "config.schema.yaml"
 
 
 def _study():

@@ -81,14 +81,14 @@ def test_schema_refuses_unknown_key_naming_it():
     from snakemake.utils import validate
 
     cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
-    validate(cfg, str(ROOT / "workflow" / "schemas" / "config.schema.yaml"))
+    validate(cfg, str(ROOT / "src" / "calib" / "resources" / "config.schema.yaml"))
     cfg["drift"]["particle_count"] = 30
     with pytest.raises(Exception, match="particle_count"):
-        validate(cfg, str(ROOT / "workflow" / "schemas" / "config.schema.yaml"))
+        validate(cfg, str(ROOT / "src" / "calib" / "resources" / "config.schema.yaml"))
     cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
     cfg["site"]["latitude_deg"] = 95.0
     with pytest.raises(Exception, match="95"):
-        validate(cfg, str(ROOT / "workflow" / "schemas" / "config.schema.yaml"))
+        validate(cfg, str(ROOT / "src" / "calib" / "resources" / "config.schema.yaml"))
 
 
 def test_tracking_two_runs_side_by_side(tmp_path, monkeypatch):

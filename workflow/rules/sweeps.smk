@@ -13,7 +13,7 @@ SWEEPS = _sweeps.load_all(
     config.get("sweeps", []),
     {k: v for k, v in config.items() if k != "sweeps"},
     os.path.join(workflow.current_basedir, "..", "schemas", "sweep.schema.yaml"),
-    os.path.join(workflow.current_basedir, "..", "schemas", "config.schema.yaml"),
+    os.path.join(workflow.current_basedir, "..", "..", "src", "calib", "resources", "config.schema.yaml"),
 )
 _SWEEP_NAMES = "|".join(re.escape(n) for n in SWEEPS) or "(?!)"
 

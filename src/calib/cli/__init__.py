@@ -34,8 +34,8 @@ from calib import __version__
 from calib.core.errors import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_SIGINT, CalibError, InputError,
                                ResultCheckError, Terminated, input_file, load_mapping, schema_error, yaml_problem)
 
-DEFAULT_CONFIG = "config/config.yaml"
-SCHEMA = Path(__file__).resolve().parents[3] / "workflow" / "schemas" / "config.schema.yaml"
+#: the study configuration of the source tree calib runs from (not of the working directory)
+DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "config" / "config.yaml"
 MAX_HOURS = 240.0            # longest synthetic recording without --force (He 2019's 240 h)
 BYTES_PER_SAMPLE = 6 * 8 + 4  # accel + gyro float64 + float32 temperature: the largest a simulated sample takes
 FORCE_HELP = "run despite implausible magnitudes for the declared units (the refusals become warnings)"
@@ -67,18 +67,26 @@ def _output_dir(path) -> Path:
 
 
 def _config(path):
-    if not Path(path).exists():
-        raise InputError("config file not found", file=path, fix="pass --config PATH")
-    cfg = load_mapping(path, "config file")
-    if SCHEMA.exists():
-        err = schema_error(cfg, yaml.safe_load(SCHEMA.read_text()), path, Path(path).read_text(),
-                           f"workflow/schemas/{SCHEMA.name}")
-        if err is not None:
-            raise err
-        from snakemake.utils import validate
+    """The study config (``--config``, default: the source tree's ``config/config.yaml``), checked against the
+    packaged schema (:mod:`calib.resources`, the file the workflow validates with) with its defaults filled."""
+    import importlib.resources
 
+    from calib import resources
+
+    path = DEFAULT_CONFIG if path is None else Path(path)
+    if not path.exists():
+        raise InputError("config file not found", file=path,
+                         fix="pass --config PATH (a study config such as config/config.yaml of the repository)")
+    cfg = load_mapping(path, "config file")
+    schema = resources.schema_text()
+    err = schema_error(cfg, yaml.safe_load(schema), path, path.read_text(), f"calib/resources/{resources.SCHEMA}")
+    if err is not None:
+        raise err
+    from snakemake.utils import validate
+
+    with importlib.resources.as_file(importlib.resources.files(resources).joinpath(resources.SCHEMA)) as sp:
         try:
-            validate(cfg, str(SCHEMA))  # fills the schema's defaults
+            validate(cfg, str(sp))  # fills the schema's defaults
         except Exception as exc:  # noqa: BLE001 - any other refusal: its first line only, never the dump
             raise InputError(str(exc).strip().splitlines()[0][:200], file=path) from None
     return cfg
@@ -372,7 +380,7 @@ def main(argv=None):
     s = sub.add_parser("simulate", help="synthetic sessions (data stage)")
     s.add_argument("kind", choices=["calibration", "navigation", "static_check"])
     s.add_argument("out")
-    s.add_argument("--config", default=DEFAULT_CONFIG)
+    s.add_argument("--config", help="study config (default: config/config.yaml of the calib source tree)")
     s.add_argument("--seed", type=int)
     s.add_argument("--hours", type=float,
                    help=f"length of a navigation / static_check session, 0 < H <= {MAX_HOURS:g}")
@@ -391,7 +399,7 @@ def main(argv=None):
     s.add_argument("recording")
     s.add_argument("--out", required=True)
     s.add_argument("--truth")
-    s.add_argument("--config", default=DEFAULT_CONFIG)
+    s.add_argument("--config", help="study config (default: config/config.yaml of the calib source tree)")
     s.add_argument("--quick", action="store_true", help="3 runs of IDE, IDE+polish and least squares only")
     s.add_argument("--noise-record", default=None,
                    help="long static recording of the same unit: its Allan deviation gives the bias instability "
