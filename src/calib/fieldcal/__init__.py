@@ -53,7 +53,10 @@ Residuals and statistics
 
 Modules: ``results`` (result objects, names, settings keys), ``accelerometer`` (gravity norm), ``intervals``
 (which static intervals and samples), ``gyroscope`` (gravity directions), ``ferraris`` (labelled sessions),
-``session`` (a whole recording). Public API, re-exported here: :func:`fieldcal_recording` (workflow),
+``units_check`` (the gyro's declared units and the rate checked by rotation between static poses, before the gyro
+fit), ``session`` (a whole recording). What a pose set does not determine: each fit's ``determination``
+(:class:`calib.fieldcal.results.Determination`: marginal standard errors against plausibility scales, the
+verdicts, the parameters held at nominal). Public API, re-exported here: :func:`fieldcal_recording` (workflow),
 :func:`fit_accel_norm`, :func:`fit_gyro_directions`, :func:`fit_ferraris`, :func:`imu_tk_intervals`,
 :func:`imu_tk_accel_search`, :func:`mikoff_standstill`, :func:`norm_residual_rms`, and the result classes
 :class:`FieldCalResult` and :class:`TriadFit` (whose :meth:`TriadFit.model` is the fit as a
@@ -107,6 +110,11 @@ from calib.fieldcal.gyroscope import (  # noqa: F401
 from calib.fieldcal.ferraris import (  # noqa: F401
     LABEL_PATTERN,
     fit_ferraris,
+)
+from calib.fieldcal.units_check import (  # noqa: F401
+    UnitsCheck,
+    UnitsCheckError,
+    check_gyro_units,
 )
 from calib.fieldcal.session import (  # noqa: F401
     fieldcal_recording,

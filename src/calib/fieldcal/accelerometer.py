@@ -12,11 +12,16 @@ from calib.signal import detect
 from calib.calibration.identifiability import rank_summary
 from calib.fieldcal.results import (
     ACCEL_NAMES,
-    FieldCalError,
     MIN_INTERVALS,
+    PLAUSIBLE_ACCEL_BIAS_G,
+    PLAUSIBLE_MISALIGNMENT_RAD,
+    PLAUSIBLE_SCALE_REL,
     RECOMMENDED_INTERVALS,
+    Determination,
+    FieldCalError,
     TriadFit,
     input_label,
+    log,
     scale_factor_units,
 )
 
@@ -121,11 +126,40 @@ def _require_intervals(n_found, needed, recommended, detection, path, what="stat
     return None
 
 
+#: nominal parameters of the norm model in physical units: no misalignment, unit gains, no bias
+NOMINAL = (0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+
+
+def _put(p, held, q):
+    """``p`` with its free entries (not ``held``) replaced by ``q``."""
+    out = np.array(p, dtype=float)
+    out[~held] = q
+    return out
+
+
+def accel_determination(p, means, n_samples, sigma, gravity, names=ACCEL_NAMES, misfit=True) -> Determination:
+    """What the static poses determine of the 9 norm-model parameters at ``p``: marginal standard errors from the
+    Jacobian of the interval *means* (so that sample noise lends no rank to orientations never visited), with
+    the scatter of the interval means, floored at the sample scatter over the mean interval length. Plausibility
+    scales: misalignment 1 deg, gain 1 %, bias 0.1 g (in input units)."""
+    means = np.asarray(means, dtype=float)
+    J = accel_jacobian(p, means, gravity)
+    res = np.linalg.norm(accel_apply(p, means), axis=1) - gravity
+    m = len(means)
+    s2 = float(res @ res) / max(m - 9, 1) if misfit else 0.0
+    s2 = max(s2, sigma ** 2 / max(n_samples / max(m, 1), 1.0))
+    gains = np.abs(p[3:6])
+    scale = np.concatenate([np.full(3, PLAUSIBLE_MISALIGNMENT_RAD), PLAUSIBLE_SCALE_REL * gains,
+                            PLAUSIBLE_ACCEL_BIAS_G * gravity / gains])
+    return Determination.from_jacobian(J, math.sqrt(s2), names, scale, based_on=f"interval means ({m} rows)")
+
+
 def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: int | None = None, x0=None,
                    input_units: str = "count", input_factor: float = 1.0, input_kind: str = "rate",
                    dt: float = 1.0, min_intervals: int = MIN_INTERVALS,
                    recommended_intervals: int = RECOMMENDED_INTERVALS, rank_rtol: float = 1e-6,
-                   detection: detect.StaticDetection | None = None, path=None) -> TriadFit:
+                   detection: detect.StaticDetection | None = None, path=None,
+                   hold_undetermined: bool = True) -> TriadFit:
     """Accelerometer calibration by the gravity norm at static intervals (9-parameter model).
 
     ``accel``: (n, 3) samples in the calibration's input units (counts, or m s-2 -- already converted).
@@ -135,6 +169,12 @@ def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: in
     Raises a :class:`detect.StaticDetectionError` (with a threshold suggestion when ``detection`` is given)
     for fewer than ``min_intervals`` intervals. ``input_*``/``dt``: how raw recording samples map to the input
     units (stored for :meth:`TriadFit.apply`).
+
+    What the poses determine (:func:`accel_determination`) is stored as ``determination``; with
+    ``hold_undetermined`` the parameters ``not determined`` are held at nominal (misalignment 0; gain 1 and
+    bias 0 for physical units, for counts the geometric mean of the determined gains and the initial bias) and
+    the others refitted (their covariance rows are NaN). As many poses as parameters (9) or fewer leave no
+    redundancy: said in the notes and on the console.
     """
     accel = np.asarray(accel, dtype=np.float64)
     iv = np.asarray(intervals, dtype=np.int64).reshape(-1, 2)
@@ -146,15 +186,39 @@ def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: in
     means = np.array([accel[a:b].mean(axis=0) for a, b in iv])
     if x0 is None:
         x0 = ellipsoid_guess(means, gravity)
-        if x0 is None:
+        if x0 is None and input_units != "count":
+            x0 = np.array(NOMINAL)
+            notes.append("initial guess nominal (ellipsoid fit to the static means not positive definite: the "
+                         "poses do not span all directions)")
+        elif x0 is None:
             x0 = range_guess(means, gravity)
             notes.append("initial guess from the range of the static means (ellipsoid fit not positive definite)")
         else:
             notes.append("initial guess from an algebraic ellipsoid fit to the static means")
     x0 = np.asarray(x0, dtype=float)
-    sol = least_squares(accel_residual, x0, jac=accel_jacobian, args=(N, gravity), method="lm",
-                        x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12)
-    p = sol.x
+    hold0 = np.zeros(9, dtype=bool)
+    if hold_undetermined and any("not positive definite" in n for n in notes):
+        # poses that do not span all directions: hold what they cannot see before the fit, or the fit wanders
+        r0 = accel_residual(x0, N, gravity)
+        r0 = r0 - np.array([r0[which == i].mean() for i in range(len(iv))])[which]  # noise only, not misfit
+        det0 = accel_determination(x0, means, len(N), float(np.sqrt(np.mean(r0 ** 2))), gravity, misfit=False)
+        hold0 = np.array([v == "not determined" for v in det0.verdicts])
+    if hold0.any():
+        x_fixed = x0.copy()
+
+        def fun0(q):
+            return accel_residual(_put(x_fixed, hold0, q), N, gravity)
+
+        def jac0(q):
+            return accel_jacobian(_put(x_fixed, hold0, q), N, gravity)[:, ~hold0]
+
+        sol = least_squares(fun0, x0[~hold0], jac=jac0, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12,
+                            gtol=1e-12)
+        p = _put(x_fixed, hold0, sol.x)
+    else:
+        sol = least_squares(accel_residual, x0, jac=accel_jacobian, args=(N, gravity), method="lm",
+                            x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        p = sol.x
     if p[5] < 0 or p[4] < 0 or p[3] < 0:  # a sign flip of one axis gives the same norms: fix the gauge
         flip = np.sign(p[3:6])
         p = p.copy()
@@ -165,11 +229,56 @@ def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: in
         p[2] *= flip[1] * flip[2]
         notes.append("gain signs fixed positive (the norm does not see axis sign)")
     r = accel_residual(p, N, gravity)
+    sigma_first = math.sqrt(float(r @ r) / max(len(r) - 9, 1))
+    det = accel_determination(p, means, len(N), sigma_first, gravity)
+    free = ~hold0
+    if hold_undetermined and (det.not_determined or hold0.any()):
+        free = np.array([v != "not determined" for v in det.verdicts]) & ~hold0
+        gains_det = np.abs(p[3:6][free[3:6]])
+        nominal = np.zeros(9)
+        if input_units == "count":
+            nominal[3:6] = float(np.exp(np.mean(np.log(gains_det)))) if gains_det.size else p[3:6]
+            nominal[6:9] = x0[6:9]
+        else:
+            nominal[3:6] = 1.0
+        p = np.where(free, p, nominal)
+        if free.any():
+            p_fixed = p.copy()
+
+            def fun_free(q):
+                pp = p_fixed.copy()
+                pp[free] = q
+                return accel_residual(pp, N, gravity)
+
+            def jac_free(q):
+                pp = p_fixed.copy()
+                pp[free] = q
+                return accel_jacobian(pp, N, gravity)[:, free]
+
+            sol2 = least_squares(fun_free, p[free], jac=jac_free, method="lm", x_scale="jac", xtol=1e-12,
+                                 ftol=1e-12, gtol=1e-12)
+            p = p_fixed.copy()
+            p[free] = sol2.x
+        det.held = tuple(n for n, f in zip(ACCEL_NAMES, free) if not f)
+        det.nominal = {n: float(p[i]) for i, n in enumerate(ACCEL_NAMES) if not free[i]}
+    r = accel_residual(p, N, gravity)
     J = accel_jacobian(p, N, gravity)
     m, k = J.shape
-    dof = max(m - k, 1)
+    dof = max(m - int(free.sum()), 1)
     sigma2 = float(r @ r) / dof
-    cov = sigma2 * np.linalg.pinv(J.T @ J)
+    if free.all():
+        cov = sigma2 * np.linalg.pinv(J.T @ J)
+    else:
+        cov = np.full((9, 9), np.nan)
+        cov[np.ix_(free, free)] = sigma2 * np.linalg.pinv(J[:, free].T @ J[:, free])
+    if len(iv) <= 9:
+        msg = (f"{len(iv)} static poses for 9 accelerometer parameters: no redundancy, the residuals cannot reveal "
+               "a bad pose or a model error")
+        notes.append(msg)
+        log.warning("%s: %s", path or "input", msg)
+    if det.not_determined or det.weak:
+        notes.append(det.describe("accel"))
+        log.warning("%s: %s", path or "input", det.describe("accel"))
     ident = rank_summary(accel_jacobian(p, means, gravity), ACCEL_NAMES, rank_rtol,
                             based_on=f"interval means ({len(iv)} rows)")
     if ident.rank < 9:
@@ -188,7 +297,7 @@ def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: in
         matrix=accel_matrix(p), bias=p[6:9].copy(), input_units=input_units, input_factor=float(input_factor),
         input_kind=input_kind, dt=float(dt), output_units="m s-2", scale_factors=sf, scale_factor_std=sf_std,
         scale_factor_units=sf_units, residual_rms=float(np.sqrt(np.mean(r * r))), residual_units="m s-2",
-        n_residuals=int(m), identifiability=ident, notes=notes,
+        n_residuals=int(m), identifiability=ident, notes=notes, determination=det,
         extra={"interval_norm_residuals": mean_res, "interval_norm_rms": float(np.sqrt(np.mean(mean_res ** 2))),
                "sigma": math.sqrt(sigma2), "n_intervals": int(len(iv)), "samples_per_interval": samples_per_interval,
                "x0": x0, "nfev": int(sol.nfev), "residuals": r, "residual_interval": which})

@@ -3,6 +3,7 @@ direction into the second's (quaternion RK4 integration); the static g-sensitivi
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numba
 import numpy as np
@@ -13,11 +14,16 @@ from calib.fieldcal.accelerometer import misalignment_matrix
 from calib.calibration.identifiability import rank_summary
 from calib.fieldcal.results import (
     BIAS_NAMES,
+    GYRO_NAMES,
+    PLAUSIBLE_GYRO_BIAS_RAD_S,
+    PLAUSIBLE_MISALIGNMENT_RAD,
+    PLAUSIBLE_SCALE_REL,
+    Determination,
     FieldCalError,
     FieldCalResult,
-    GYRO_NAMES,
     TriadFit,
     input_label,
+    log,
     scale_factor_units,
 )
 
@@ -155,7 +161,8 @@ GSENS_NAMES = tuple(f"gsens_{r}{c}" for r in "xyz" for c in "xyz")
 def fit_gyro_directions(gyro, accel_calibrated, intervals, dt, *, bias, g_sensitivity=None,
                         offset_covariance=None, estimate_bias: bool = False, scale_guess: float | None = None,
                         input_units: str = "count", input_factor: float = 1.0, input_kind: str = "rate",
-                        sample_dt: float = 1.0, rank_rtol: float = 1e-6, path=None) -> TriadFit:
+                        sample_dt: float = 1.0, rank_rtol: float = 1e-6, path=None,
+                        hold_undetermined: bool = True) -> TriadFit:
     """Gyro calibration from gravity directions across the motions between consecutive static intervals.
 
     ``gyro``: (n, 3) in the calibration's input units (counts, or rad s-1). ``accel_calibrated``: (n, 3)
@@ -167,6 +174,11 @@ def fit_gyro_directions(gyro, accel_calibrated, intervals, dt, *, bias, g_sensit
     from; None: 1 for physical units, for counts the best of a logarithmic scan over 1e0..1e7.
     Minimises IMU-TK's residual ``R^T u0 - u1`` with Levenberg-Marquardt (parameters internally relative:
     gain = g0 (1 + d), bias correction = beta / g0 with beta in rad s-1).
+
+    What the motions determine is stored as ``determination`` (marginal standard errors of the internal
+    parameters from the Jacobian at the solution; plausibility scales: misalignment 1 deg, gain 1 %, bias
+    10 deg/s); with ``hold_undetermined`` the parameters ``not determined`` are held at nominal (misalignment
+    0, gain g0 = 1 / ``scale_guess``, bias correction 0) and the others refitted (covariance rows NaN).
     """
     gyro = np.asarray(gyro, dtype=np.float64)
     iv = np.asarray(intervals, dtype=np.int64).reshape(-1, 2)
@@ -203,22 +215,59 @@ def fit_gyro_directions(gyro, accel_calibrated, intervals, dt, *, bias, g_sensit
     before = direction_angles_deg(fun(q0).reshape(-1, 3))
     sol = least_squares(fun, q0, method="lm", xtol=1e-12, ftol=1e-12, gtol=1e-12)
     q = sol.x
+    fit_names = GYRO_NAMES + (BIAS_NAMES if nb else ())
+    jac_first = sol.jac
+    m0 = sol.jac.shape[0]
+    det = Determination.from_jacobian(
+        sol.jac, np.sqrt(float(sol.fun @ sol.fun) / max(m0 - len(q), 1)), fit_names,
+        np.concatenate([np.full(6, PLAUSIBLE_MISALIGNMENT_RAD), np.full(3, PLAUSIBLE_SCALE_REL),
+                        np.full(nb, PLAUSIBLE_GYRO_BIAS_RAD_S)]),
+        based_on=f"gravity-direction residuals ({prob.n_pairs} motions); gains relative, bias in rad s-1")
+    free = np.ones(len(q), dtype=bool)
+    if hold_undetermined and det.not_determined:
+        free = np.array([v != "not determined" for v in det.verdicts])
+        if free.any():
+            def fun_free(qf):
+                qq = np.zeros(len(q))
+                qq[free] = qf
+                return fun(qq)
+
+            sol = least_squares(fun_free, np.zeros(int(free.sum())), method="lm", xtol=1e-12, ftol=1e-12,
+                                gtol=1e-12)
+            q = np.zeros(len(q))
+            q[free] = sol.x
+            jac = np.zeros((sol.jac.shape[0], len(q)))
+            jac[:, free] = sol.jac
+        else:
+            q = np.zeros(len(q))
+            res0 = fun(q)
+            sol = SimpleNamespace(fun=res0, jac=np.zeros((len(res0), len(q))), nfev=1)
+            jac = sol.jac
+        det.held = tuple(n for n, f in zip(fit_names, free) if not f)
+        det.nominal = {n: (g0 if n.startswith("gain") else 0.0) for n, f in zip(fit_names, free) if not f}
     M, gains, db = unpack(q)
     b = prob.bias0 + db
     rv = sol.fun.reshape(-1, 3)
     ang = direction_angles_deg(rv)
-    J = sol.jac
+    J = sol.jac if free.all() else jac
     m, k = J.shape
-    dof = max(m - k, 1)
+    dof = max(m - int(free.sum()), 1)
     sigma2 = float(sol.fun @ sol.fun) / dof
-    cov_int = sigma2 * np.linalg.pinv(J.T @ J)
+    if free.all():
+        cov_int = sigma2 * np.linalg.pinv(J.T @ J)
+    else:
+        cov_int = np.full((k, k), np.nan)
+        cov_int[np.ix_(free, free)] = sigma2 * np.linalg.pinv(J[:, free].T @ J[:, free])
     # external parameters: mis (same), gains = g0 (1 + d), bias correction = beta / g0
-    A = np.diag(np.concatenate([np.ones(6), np.full(3, g0), np.full(nb, 1.0 / g0)]))
-    cov_fit = A @ cov_int @ A.T
-    fit_names = GYRO_NAMES + (BIAS_NAMES if nb else ())
-    ident = rank_summary(J, fit_names, rank_rtol, based_on=f"gravity-direction residuals ({prob.n_pairs} motions)")
+    a_ext = np.concatenate([np.ones(6), np.full(3, g0), np.full(nb, 1.0 / g0)])
+    cov_fit = a_ext[:, None] * cov_int * a_ext[None, :]
+    ident = rank_summary(jac_first, fit_names, rank_rtol,
+                         based_on=f"gravity-direction residuals ({prob.n_pairs} motions)")
     if ident.rank < len(fit_names):
         notes.append(f"gyro model not fully identified: {ident.describe()}")
+    if det.not_determined or det.weak:
+        notes.append(det.describe("gyro"))
+        log.warning("%s: %s", path or "input", det.describe("gyro"))
     # parameter vector: the direction fit, then the offsets (bias always; G when g-sensitive)
     names = GYRO_NAMES + BIAS_NAMES + (GSENS_NAMES if g_sensitivity is not None else ())
     values = np.concatenate([q[:6], gains, b] + ([np.asarray(g_sensitivity, float).ravel()]
@@ -248,7 +297,7 @@ def fit_gyro_directions(gyro, accel_calibrated, intervals, dt, *, bias, g_sensit
         input_kind=input_kind, dt=float(sample_dt), output_units="rad s-1", scale_factors=sf,
         scale_factor_std=sf_std, scale_factor_units=scale_factor_units("gyro", input_units, in_u),
         residual_rms=float(np.sqrt(np.mean(ang ** 2))), residual_units="deg", n_residuals=int(m),
-        identifiability=ident, notes=notes,
+        identifiability=ident, notes=notes, determination=det,
         g_sensitivity=None if g_sensitivity is None else np.asarray(g_sensitivity, dtype=float),
         extra={"pair_angles_deg": ang, "rms_before_deg": float(np.sqrt(np.mean(before ** 2))),
                "n_motions": prob.n_pairs, "nfev": int(sol.nfev), "scale_guess": scale_guess,

@@ -3,13 +3,18 @@
 :class:`calib.calibration.identifiability.RankSummary`."""
 from __future__ import annotations
 
+import logging
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import xarray as xr
 
 from calib.core.triad import TriadModel
-from calib.calibration.identifiability import RankSummary
+from calib.calibration.identifiability import RankSummary, column_scaled, rank_summary, singular_spectrum
+
+#: messages for the console (and a rule's log): what the poses do not determine, refusals turned into warnings
+log = logging.getLogger("calib.fieldcal")
 
 
 ACCEL_NAMES = ("mis_yz", "mis_zy", "mis_zx", "gain_x", "gain_y", "gain_z", "bias_x", "bias_y", "bias_z")
@@ -26,7 +31,7 @@ IMU_TK_DEFAULTS = {"k": list(range(2, 11)), "init_samples": 5000, "window": 101,
                    "min_intervals": 12}
 
 SETTINGS_KEYS = {"method", "gravity_m_s2", "detection", "samples_per_interval", "min_intervals",
-                 "recommended_intervals", "gyro", "evaluate", "rank_rtol"}
+                 "recommended_intervals", "gyro", "evaluate", "rank_rtol", "units_check", "hold_undetermined"}
 DETECTION_KEYS_DETECT = {"rule", "window_s", "min_interval_s", "threshold", "k", "init_s", "gyro_threshold",
                          "use_gyro", "onset_factor", "floor_percentile"}
 DETECTION_KEYS_IMU_TK = {"rule", "k", "init_samples", "window", "samples_per_interval", "min_intervals"}
@@ -37,6 +42,107 @@ EVALUATIONS = ("mikoff_standstill", "directions")
 
 class FieldCalError(ValueError):
     """Field calibration cannot proceed; the message names the input, the problem and the fix."""
+
+
+# =========================================================================== what the poses determine
+
+#: plausibility scales of the parameters: a marginal standard error above one is "not determined", above
+#: WEAK_FRACTION of one "weakly determined"
+PLAUSIBLE_MISALIGNMENT_RAD = math.radians(1.0)
+PLAUSIBLE_SCALE_REL = 0.01
+PLAUSIBLE_ACCEL_BIAS_G = 0.1
+PLAUSIBLE_GYRO_BIAS_RAD_S = math.radians(10.0)
+WEAK_FRACTION = 0.1
+VERDICTS = ("determined", "weakly determined", "not determined")
+
+
+def marginal_standard_errors(jac, sigma: float) -> np.ndarray:
+    """Marginal standard errors ``sigma sqrt(diag((J^T J)^-1))`` from the identifiability SVD of the column-scaled
+    Jacobian (:func:`calib.calibration.identifiability.singular_spectrum`), without a pseudo-inverse's cut-off: a
+    direction the observations do not see (singular value zero, or below 1e-13 of the largest) gives an
+    infinite standard error to every parameter it involves."""
+    J = np.asarray(jac, dtype=float)
+    c = np.linalg.norm(J, axis=0)
+    c = np.where(c > 0, c, 1.0)
+    S, Vt = singular_spectrum(column_scaled(J))
+    smax = S[0] if S.size and S[0] > 0 else 0.0
+    inv2 = np.where(S > 1e-13 * smax, 1.0 / np.where(S > 0, S, 1.0) ** 2, np.inf)
+    V2 = Vt.T ** 2  # (p, k): V_jk^2
+    with np.errstate(invalid="ignore"):
+        terms = np.where(V2 > 1e-24, V2 * inv2[None, :], 0.0)
+    se = float(sigma) * np.sqrt(terms.sum(axis=1)) / c
+    return np.where(np.linalg.norm(J, axis=0) > 0, se, np.inf)
+
+
+@dataclass
+class Determination:
+    """Which parameters a pose set determines: per parameter its marginal standard error ``se`` and plausibility
+    ``scale`` (same units), the verdict (:data:`VERDICTS`), the condition number of the column-scaled Jacobian
+    and the parameters ``held`` at nominal in the refit (with ``nominal`` values)."""
+
+    names: tuple
+    se: np.ndarray
+    scale: np.ndarray
+    verdicts: list
+    condition: float
+    based_on: str
+    held: tuple = ()
+    nominal: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_jacobian(cls, jac, sigma, names, scale, based_on=""):
+        """Verdicts from the Jacobian ``jac`` at the solution and the residual scale ``sigma``. The parameter whose
+        marginal standard error is the largest multiple (> 1) of its plausibility scale is ``not determined`` and
+        left out, the others' standard errors recomputed without it, until every remaining one is within its
+        scale (a null direction is then named by the parameters it involves most, relative to their scales)."""
+        J = np.asarray(jac, dtype=float)
+        scale = np.asarray(scale, dtype=float)
+        p = J.shape[1]
+        keep = np.ones(p, dtype=bool)
+        se = np.full(p, np.inf)
+        while keep.any():
+            se_k = marginal_standard_errors(J[:, keep], sigma)
+            se[keep] = se_k
+            ratio = se_k / scale[keep]
+            worst = int(np.argmax(ratio))
+            if not ratio[worst] > 1.0:
+                break
+            keep[np.flatnonzero(keep)[worst]] = False
+        verdicts = [VERDICTS[2] if not k else VERDICTS[1] if e > WEAK_FRACTION * s else VERDICTS[0]
+                    for k, e, s in zip(keep, se, scale)]
+        cond = rank_summary(J, names, based_on=based_on).condition
+        return cls(tuple(names), se, scale, verdicts, float(cond), based_on)
+
+    @property
+    def not_determined(self) -> list:
+        return [n for n, v in zip(self.names, self.verdicts) if v == VERDICTS[2]]
+
+    @property
+    def weak(self) -> list:
+        return [n for n, v in zip(self.names, self.verdicts) if v == VERDICTS[1]]
+
+    def verdict(self, name: str) -> str:
+        return self.verdicts[self.names.index(name)]
+
+    def describe(self, sensor: str) -> str:
+        out = f"{sensor}: condition number of the pose set {self.condition:.3g}"
+        if self.not_determined:
+            out += "; not determined: " + ", ".join(self.not_determined)
+        if self.held:
+            out += "; held at nominal (" + ", ".join(f"{k} = {v:.6g}" for k, v in self.nominal.items()) + \
+                   ") and the others refitted"
+        if self.weak:
+            out += "; weakly determined: " + ", ".join(self.weak)
+        if not self.not_determined and not self.weak:
+            out += "; every parameter determined"
+        return out
+
+    def as_dict(self) -> dict:
+        return {"condition": self.condition, "based_on": self.based_on, "held_at_nominal": list(self.held),
+                "nominal": {k: float(v) for k, v in self.nominal.items()},
+                "parameters": {n: {"se": (float(e) if math.isfinite(e) else None), "plausible_scale": float(s),
+                                   "verdict": v}
+                               for n, e, s, v in zip(self.names, self.se, self.scale, self.verdicts)}}
 
 
 # =========================================================================== result objects
@@ -76,6 +182,7 @@ class TriadFit:
     notes: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
     g_sensitivity: np.ndarray | None = None
+    determination: Determination | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -131,6 +238,7 @@ class FieldCalResult:
     metrics: dict
     notes: list
     settings: dict
+    units_check: dict | None = None
 
     def apply(self, accel_raw, gyro_raw=None):
         a = self.accel.apply(accel_raw)
@@ -167,6 +275,11 @@ class FieldCalResult:
                         "gyro_scale_factors": [float(v) for v in g.scale_factors],
                         "gyro_scale_factor_units": g.scale_factor_units,
                         "gyro_identifiability": g.identifiability.as_dict() if g.identifiability else None})
+        if self.units_check is not None:
+            out["units_check"] = self.units_check
+        for f in (self.accel, self.gyro):
+            if f is not None and f.determination is not None:
+                out[f"{f.sensor}_determination"] = f.determination.as_dict()
         out.update(self.metrics)
         out["notes"] = list(self.notes) + [f"accel: {n}" for n in a.notes] + \
             ([f"gyro: {n}" for n in self.gyro.notes] if self.gyro else [])
@@ -230,6 +343,12 @@ class FieldCalResult:
                 idf = f.identifiability
                 attrs.update({f"{s}_rank": idf.rank, f"{s}_n_params": idf.n_params,
                               f"{s}_condition": idf.condition, f"{s}_identifiability": idf.describe()})
+            if f.determination is not None:
+                attrs[f"{s}_determination"] = f.determination.describe(s)
+        if self.units_check is not None:
+            uc = self.units_check
+            attrs["units_check"] = uc["status"] + (f": {uc['reason']}" if uc.get("reason") else "")
+            attrs["units_check_closure_deg"] = np.asarray(uc.get("closure_deg") or [], dtype=float)
         for k, v in self.metrics.items():
             if isinstance(v, (int, float, str, np.integer, np.floating)) and not isinstance(v, bool):
                 attrs[f"metric_{k}"] = v

@@ -9,13 +9,14 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from calib.signal import detect
+from calib.signal import clock, detect
 from calib.core import earth
 from calib.io import recording
 from calib.fieldcal.accelerometer import fit_accel_norm, norm_residual_rms
 from calib.fieldcal.ferraris import LABEL_PATTERN, fit_ferraris
 from calib.fieldcal.gyroscope import direction_check, fit_gyro_directions, gyro_static_regression
 from calib.fieldcal.intervals import imu_tk_accel_search, mikoff_standstill
+from calib.fieldcal.units_check import UnitsCheck, check_gyro_units
 from calib.fieldcal.results import (
     DETECTION_KEYS_DETECT,
     DETECTION_KEYS_IMU_TK,
@@ -28,6 +29,7 @@ from calib.fieldcal.results import (
     MIN_INTERVALS,
     RECOMMENDED_INTERVALS,
     SETTINGS_KEYS,
+    log,
 )
 
 # =========================================================================== recording-level workflow
@@ -74,6 +76,9 @@ def _check_settings(settings, src):
     for ev in settings.get("evaluate") or []:
         if ev not in EVALUATIONS:
             raise FieldCalError(f"{src}: settings 'evaluate' entry {ev!r} -- fix: one of {', '.join(EVALUATIONS)}")
+    for key in ("units_check", "hold_undetermined"):
+        if not isinstance(settings.get(key, True), bool):
+            raise FieldCalError(f"{src}: settings '{key}' = {settings.get(key)!r} -- fix: true or false")
     if settings.get("method", "auto") not in ("auto", "norm", "ferraris"):
         raise FieldCalError(f"{src}: settings 'method' = {settings.get('method')!r} -- fix: auto, norm or ferraris")
 
@@ -100,7 +105,41 @@ def _labelled(ds):
     return statics, turns
 
 
-def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResult:
+def clock_steps(ds, src="dataset"):
+    """Clock periods from each sample to the next (n - 1,) of the recording's time coordinate
+    (:func:`calib.signal.clock.fit_clock`: 1, or k over k - 1 dropped samples), or None when every step is one
+    period (or there is no time coordinate)."""
+    if "time" not in ds.coords:
+        return None
+    try:
+        clk = clock.fit_clock(np.asarray(ds["time"].values, dtype=float))
+    except clock.ClockError as exc:
+        raise FieldCalError(f"{src}: time coordinate: {exc}") from None
+    return None if clk.uniform else clk.steps().astype(float)
+
+
+def _units_check(settings, gyr_in, gyr_units_in, accel_dirs, iv, dts, fs, ds, src, force, notes):
+    """The rotation check of the gyro's units and the rate (:mod:`calib.fieldcal.units_check`), as a dict."""
+    if not settings.get("units_check", True):
+        return UnitsCheck("disabled", "settings units_check: false").as_dict()
+    if not (settings.get("gyro") or {}).get("enabled", True):
+        return UnitsCheck("not checked", "gyro.enabled: false").as_dict()
+    if gyr_units_in != "rad s-1":
+        return UnitsCheck("not checked", "gyro in counts: no nominal scale to check").as_dict()
+    if accel_dirs is None:
+        return UnitsCheck("not checked", "accel in counts and not yet calibrated").as_dict()
+    uc = check_gyro_units(gyr_in, accel_dirs, iv, dts, source=src, fs=fs,
+                          rate_from_clock="clock_rate_hz" in ds.attrs, force=force)
+    if uc.status == "forced":
+        msg = f"units check refused ({uc.field}), overridden by force: {uc.reason}"
+        notes.append(msg)
+        log.warning("%s: %s", src, msg)
+    elif uc.status == "not checked":
+        notes.append(f"units check: not checked: {uc.reason}")
+    return uc.as_dict()
+
+
+def fieldcal_recording(path_or_ds, settings: dict | None = None, *, force: bool = False) -> FieldCalResult:
     """Field-calibrate a ``calib-recording-1`` recording (path or in-memory dataset).
 
     Settings (all optional; unknown keys are an error):
@@ -122,6 +161,15 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResu
     (:func:`gyro_static_regression`; falls back to ``statics`` when the orientations do not determine it);
     ``initial`` = mean over the initial rest (IMU-TK: its first ``init_samples + 1`` samples);
     ``estimate`` = that, refined in the direction fit; ``statics`` = mean over all static samples.
+    ``units_check`` (default true): before the gyro fit, check the gyro's declared units and the recording's
+    rate by rotation (:mod:`calib.fieldcal.units_check`: the common gyro factor that closes the gravity
+    directions of consecutive static poses; 180/pi, pi/180, 2 or 1/2 name the mistake); a refusal is an
+    :class:`calib.core.errors.InputError` (exit 2), a warning with ``force``; false: not run.
+    ``hold_undetermined`` (default true): parameters the poses do not determine (marginal standard error above
+    a plausibility scale: misalignment 1 deg, scale factor 1 %, bias 0.1 g or 10 deg/s) are held at nominal
+    and the others refitted (the result's ``determination`` of each triad says which and why).
+    Integration steps: ``gyro.dt: nominal`` is the recording's clock, 1 / ``sample_rate_hz`` per period (k
+    periods over k - 1 dropped samples when the time coordinate has them).
     ``evaluate``: list of extra checks: ``mikoff_standstill`` (the norm RMS over the standstill samples
     mikoff/imu-calib selects, :func:`mikoff_standstill`: ``static_norm_rms_mikoff_standstill``), ``directions``
     (:func:`direction_check` on the detected statics of the calibrated signals: ``direction_check_rms_deg``;
@@ -158,6 +206,9 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResu
         gyr_in = gyr_in / dt_nom
     acc_units_in = "count" if au == "count" else "m s-2"
     gyr_units_in = "count" if gu == "count" else "rad s-1"
+    steps = clock_steps(ds, src)
+    dts_clock = np.full(len(gyr_in), dt_nom) if steps is None else np.concatenate([steps * dt_nom, [dt_nom]])
+    units_check = None
     method = settings.get("method", "auto")
     statics, turns = _labelled(ds)
     if method == "auto":
@@ -168,6 +219,9 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResu
     sensor = str(ds.attrs.get("sensor", ""))
 
     if method == "ferraris":
+        iv_lab = np.array([[idx[0], idx[-1] + 1] for lab, idx in sorted(statics.items(), key=lambda kv: kv[1][0])])
+        units_check = _units_check(settings, gyr_in, gyr_units_in, acc_in if acc_units_in != "count" else None,
+                                   iv_lab, dts_clock, fs, ds, src, force, notes)
         acc_fit, gyr_fit = fit_ferraris(acc_in, gyr_in, fs, statics, turns, g, accel_units=acc_units_in,
                                         accel_factor=af, gyro_units=gyr_units_in, gyro_factor=gf,
                                         input_kind=ak, dt=dt_nom, path=src)
@@ -187,6 +241,7 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResu
         rule_name = det_cfg.pop("rule", "detect")
         common = dict(input_units=acc_units_in, input_factor=af, input_kind=ak, dt=dt_nom,
                       rank_rtol=float(settings.get("rank_rtol", 1e-6)))
+        common["hold_undetermined"] = bool(settings.get("hold_undetermined", True))
         if rule_name == "imu_tk":
             cfg = {**IMU_TK_DEFAULTS, **det_cfg}
             acc_fit, k_used, iv, table = imu_tk_accel_search(
@@ -202,6 +257,9 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResu
         else:
             d = detect.detect_static(acc_in, gyr_in, fs, **det_cfg)
             iv = d.intervals
+            if acc_units_in != "count":
+                units_check = _units_check(settings, gyr_in, gyr_units_in, acc_in, iv, dts_clock, fs, ds, src,
+                                           force, notes)
             n_per = settings.get("samples_per_interval")
             acc_fit = fit_accel_norm(acc_in, iv, g, samples_per_interval=n_per,
                                      min_intervals=int(settings.get("min_intervals", MIN_INTERVALS)),
@@ -217,6 +275,9 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResu
         metrics["static_interval_mean_norm_rms_m_s2"] = acc_fit.extra["interval_norm_rms"]
         metrics["n_fit_samples"] = acc_fit.n_residuals
         gyr_fit = None
+        if units_check is None:  # intervals chosen with the accel fit (IMU-TK rule) or accel in counts
+            units_check = _units_check(settings, gyr_in, gyr_units_in, acc_fit.apply(np.asarray(ds["accel"].values)),
+                                       iv, dts_clock, fs, ds, src, force, notes)
         if gset.get("enabled", True):
             acc_cal = acc_fit.apply(np.asarray(ds["accel"].values))
             bias_mode = gset.get("bias", "g_sensitive")
@@ -241,12 +302,13 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResu
                 t = np.asarray(ds["time"].values, dtype=float)
                 dts = np.concatenate([np.diff(t), [dt_nom]])
             else:
-                dts = np.full(len(gyr_in), dt_nom)
+                dts = dts_clock
             gyr_fit = fit_gyro_directions(gyr_in, acc_cal, iv, dts, bias=b0, g_sensitivity=gsens,
                                           offset_covariance=off_cov, estimate_bias=(bias_mode == "estimate"),
                                           scale_guess=gset.get("scale_guess"), input_units=gyr_units_in,
                                           input_factor=gf, input_kind=gk, sample_dt=dt_nom,
-                                          rank_rtol=float(settings.get("rank_rtol", 1e-6)), path=src)
+                                          rank_rtol=float(settings.get("rank_rtol", 1e-6)), path=src,
+                                          hold_undetermined=bool(settings.get("hold_undetermined", True)))
             gyr_fit.notes.append({
                 "g_sensitive": "offset b + G a: bias and g-sensitivity G from a least-squares fit of the static gyro "
                                "means to the calibrated accel means (independent of the direction residuals)",
@@ -281,4 +343,5 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None) -> FieldCalResu
     return FieldCalResult(method=method, accel=acc_fit, gyro=gyr_fit, frame=frame, gravity_m_s2=g,
                           intervals=np.asarray(iv, dtype=np.int64).reshape(-1, 2), detection_rule=rule, source=src,
                           sensor=sensor, metrics=metrics, notes=notes,
-                          settings={k: v for k, v in settings.items() if not k.startswith("_")})
+                          settings={k: v for k, v in settings.items() if not k.startswith("_")},
+                          units_check=units_check)

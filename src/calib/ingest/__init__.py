@@ -17,8 +17,12 @@ turns come from the settings (or the file, where it says so). What *can* be chec
   axis must have the declared sign and be within 25 % of the declared angle (counts: only with
   ``gyro.approx_counts_per_deg_s``);
 * structure: every row complete (a short last row means a truncated file), no NaN/Inf, header names as
-  declared, time strictly increasing and consistent with a declared rate, the two IMU-TK files sharing
-  their timestamps row for row.
+  declared, time strictly increasing, the two IMU-TK files sharing their timestamps row for row;
+* rate: with a time column the recording's ``sample_rate_hz`` is the sample clock fitted to it
+  (:func:`calib.signal.clock.fit_clock`: least-squares line of time against the clock index, robust to
+  burst arrival, dropped samples counted; the median step is not the rate of a bursty logger), stored with
+  its uncertainty, jitter and dropped-sample count as ``clock_*`` attributes; a declared ``sample_rate_hz``
+  must agree within max(5 sigma, 1e-3 relative). Without a time column the declared rate is the rate.
 
 Every failure raises :class:`ImportDataError` (a :class:`calib.io.recording.RecordingError`, hence a
 ``ValueError``) naming the file, the field and the fix.

@@ -8,7 +8,6 @@ from calib.ingest.common import (
     TIME_UNITS,
     check_finite_columns,
     check_keys,
-    check_time,
     column_index,
     data_file,
     declared_rate,
@@ -17,6 +16,7 @@ from calib.ingest.common import (
     read_table,
     serr,
     split_fields,
+    time_clock,
     triad_settings,
 )
 
@@ -41,7 +41,8 @@ def import_columns(settings) -> xr.Dataset:
     """Generic delimited text: ``file``, ``delimiter`` (null = whitespace), ``header`` (bool),
     ``comment`` (line prefix), ``skip_rows``; ``accel.columns`` / ``gyro.columns``: three names (with a
     header) or 0-based indices, in body-axis order x, y, z (a permutation remaps axes; ``sign`` flips them);
-    ``time: {column, units: s|ms|us|ns}`` and/or ``sample_rate_hz`` (at least one; both: checked to 1 %);
+    ``time: {column, units: s|ms|us|ns}`` and/or ``sample_rate_hz`` (at least one; with a time column the rate
+    is its least-squares clock, :func:`calib.signal.clock.fit_clock`, and a declared rate is checked against it);
     optional ``temperature: {column}`` [degC]. Every row must have the header's (or the first row's)
     number of fields.
     """
@@ -75,10 +76,11 @@ def import_columns(settings) -> xr.Dataset:
     check_finite_columns(path, data, labels, numbers)
     accel, gyro = data[:, 0:3], data[:, 3:6]
     fs_decl = declared_rate(settings, required=tcol is None)
-    time = None
+    time, clock_attrs = None, {}
     if tcol is not None:
         time = data[:, 6] * TIME_UNITS[settings["time"].get("units", "s")]
-        fs = check_time(path, time, labels[6], numbers, fs_decl, settings)
+        fs, clk = time_clock(path, time, labels[6], numbers, fs_decl, settings)
+        clock_attrs = clk.attrs()
     else:
         fs = fs_decl
     temperature = data[:, -1] if temp_col is not None else None
@@ -86,4 +88,4 @@ def import_columns(settings) -> xr.Dataset:
                               for ax, f, j in zip("xyz", triad_settings(settings, tri)["factor"], off))
                for tri, off in (("accel", range(0, 3)), ("gyro", range(3, 6)))}
     return finish(settings, "columns", path, accel, gyro, fs, time=time, sources=(path,), temperature=temperature,
-                   extra={"accel_column_map": mapping["accel"], "gyro_column_map": mapping["gyro"]})
+                   extra={"accel_column_map": mapping["accel"], "gyro_column_map": mapping["gyro"], **clock_attrs})

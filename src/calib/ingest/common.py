@@ -13,11 +13,13 @@ import yaml
 
 from calib.core import earth
 from calib.io import recording
+from calib.signal import clock
 from calib.signal.detect import moving_variance_norm, window_samples
 from calib.io.recording import RecordingError
 
 COMMON_KEYS = {"format", "latitude_deg", "height_m", "gravity_m_s2", "site_note", "sensor", "description",
-               "data_dir", "accel", "gyro", "units_check_tolerance"}
+               "data_dir", "accel", "gyro", "units_check_tolerance",
+               "fieldcal"}   # the field calibration's settings may live in the same file (read by calib fieldcal)
 TRIAD_KEYS = {"units", "sample_kind", "columns", "scale", "sign", "approx_counts_per_g", "approx_zero_count",
               "approx_counts_per_deg_s"}
 ROTATION_KEYS = {"angle_deg", "sign", "rate_deg_s"}
@@ -397,15 +399,40 @@ def finish(settings, fmt, path, accel, gyro, fs, *, time=None, sources=(), segme
         segments=segments, segment_index=segment_index, extra_attrs=attrs)
 
 
-def check_time(path, t, field, numbers=None, fs_declared=None, settings=None):
+#: a declared sample_rate_hz must agree with the fitted clock within max(CLOCK_SIGMAS x its standard uncertainty,
+#: CLOCK_REL_FLOOR x the rate); the floor allows for the clock's own offset from its nominal rate (crystal
+#: oscillators: tens to hundreds of ppm; the IMU-TK Xsens data run 100 ppm fast of their nominal 100 Hz)
+CLOCK_SIGMAS = 5.0
+CLOCK_REL_FLOOR = 1e-3
+
+
+def time_clock(path, t, field, numbers=None, fs_declared=None, settings=None):
+    """Check a time column and fit its sample clock (:func:`calib.signal.clock.fit_clock`).
+
+    Returns ``(rate_hz, clock)``: the fitted clock's rate (the recording's ``sample_rate_hz``) and the
+    :class:`~calib.signal.clock.ClockFit`. A declared ``fs_declared`` is checked against the fitted rate with
+    the tolerance max(:data:`CLOCK_SIGMAS` sigma, :data:`CLOCK_REL_FLOOR` relative)."""
     d = np.diff(t)
     if np.any(d <= 0):
         i = int(np.argmax(d <= 0))
         where = f"line {numbers[i + 1]}" if numbers is not None else f"row {i + 1}"
         raise ImportDataError(path, field, f"timestamps not strictly increasing at {where} "
                               f"({t[i]:.6f} then {t[i + 1]:.6f})", "fix or drop the out-of-order samples")
-    fs_med = 1.0 / float(np.median(d))
-    if fs_declared is not None and abs(fs_med / fs_declared - 1.0) > 0.01:
-        raise serr(settings, "sample_rate_hz", f"declared {fs_declared:g} Hz but the timestamps in {path} give "
-                    f"{fs_med:.6g} Hz (median step)", "correct sample_rate_hz or the time column's units")
-    return fs_declared if fs_declared is not None else fs_med
+    try:
+        clk = clock.fit_clock(t)
+    except clock.ClockError as exc:
+        raise ImportDataError(path, field, str(exc), "check the time column") from None
+    fs = clk.rate_hz
+    if fs_declared is not None:
+        tol = max(CLOCK_SIGMAS * clk.rate_std_hz, CLOCK_REL_FLOOR * fs)
+        if abs(fs - fs_declared) > tol:
+            raise serr(settings, "sample_rate_hz", f"declared {fs_declared:g} Hz but the timestamps in {path} give "
+                        f"{fs:.9g} +- {clk.rate_std_hz:.2g} Hz (least-squares clock, {clk.n_dropped} dropped "
+                        f"sample(s); tolerance {tol:.3g} Hz)",
+                        f"declare sample_rate_hz: {fs:.6g}, remove it, or correct the time column's units")
+    return fs, clk
+
+
+def check_time(path, t, field, numbers=None, fs_declared=None, settings=None):
+    """:func:`time_clock`'s rate alone."""
+    return time_clock(path, t, field, numbers, fs_declared, settings)[0]

@@ -8,13 +8,13 @@ from calib.ingest.common import (
     ImportDataError,
     check_finite_columns,
     check_keys,
-    check_time,
     data_file,
     declared_rate,
     finish,
     parse_numeric,
     read_table,
     serr,
+    time_clock,
 )
 
 #: the settings keys of this format (besides :data:`calib.ingest.common.COMMON_KEYS`)
@@ -25,8 +25,9 @@ def import_imu_tk(settings) -> xr.Dataset:
     """IMU-TK text pair: ``files: {accel: ..., gyro: ...}``, each row ``timestamp_s x y z`` (whitespace).
 
     The two files must hold the same timestamps row for row. Time is kept as in the files (seconds).
-    ``sample_rate_hz`` (optional) is the nominal rate, checked to 1 % against the median time step;
-    without it the median step gives the rate. Units/kind from ``accel``/``gyro`` (raw Xsens: count, rate).
+    The rate is the least-squares clock of the timestamps (:func:`calib.signal.clock.fit_clock`; stored with
+    its uncertainty, jitter and dropped samples as ``clock_*`` attributes); ``sample_rate_hz`` (optional) is the
+    nominal rate, checked against it (:func:`calib.ingest.common.time_clock`). Units/kind from ``accel``/``gyro`` (raw Xsens: count, rate).
     """
     check_keys(settings, "imu_tk", KEYS)
     files = settings.get("files")
@@ -55,5 +56,5 @@ def import_imu_tk(settings) -> xr.Dataset:
                               f"(accel line {na[i]}: {a[i, 0]!r} s, gyro line {ng[i]}: {g[i, 0]!r} s; "
                               f"{diff.size} rows differ)", "the two files must share their timestamps row for row")
     t = a[:, 0]
-    fs = check_time(pa, t, "timestamp", na, declared_rate(settings, required=False), settings)
-    return finish(settings, "imu_tk", pa, a[:, 1:], g[:, 1:], fs, time=t, sources=(pa, pg))
+    fs, clk = time_clock(pa, t, "timestamp", na, declared_rate(settings, required=False), settings)
+    return finish(settings, "imu_tk", pa, a[:, 1:], g[:, 1:], fs, time=t, sources=(pa, pg), extra=clk.attrs())
