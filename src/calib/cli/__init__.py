@@ -209,7 +209,7 @@ def cmd_fieldcal(a):
     h, _ = _recording(a.recording, a.force)
     if a.out:
         _output_file(a.out, "calibration")
-    res = fieldcal.fieldcal_recording(a.recording, settings)
+    res = fieldcal.fieldcal_recording(a.recording, settings, force=a.force)
     emit(json.dumps(res.summary(), indent=2, default=str))
     if a.out:
         write_netcdf(res.to_dataset(), a.out)
@@ -243,9 +243,34 @@ def cmd_diagnose(a):
     except InputError as exc:
         _diagnose_refusal(a.recording, settings, a.out, exc)
         raise
-    rep = diagnose(a.recording, settings, out_dir=a.out)
+    intervals = None
+    if a.fieldcal:   # the static intervals the field calibration used: one answer per file
+        intervals = _fieldcal_intervals(a.fieldcal)
+    rep = diagnose(a.recording, settings, out_dir=a.out, intervals=intervals,
+                   intervals_source=str(a.fieldcal or ""))
     emit(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
     return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 3)   # exit code: 3 inconclusive
+
+
+def _fieldcal_intervals(path):
+    """``static_intervals`` of a ``calib fieldcal --out`` result (calib-fieldcal-1), refused by name otherwise."""
+    import numpy as np
+    import xarray as xr
+
+    from calib.io.netcdf import conventions
+
+    fix = "give the result.nc written by 'calib fieldcal RECORDING --out result.nc'"
+    input_file(path, "field calibration")
+    try:
+        with xr.open_dataset(path, engine="netcdf4") as fc:
+            kind = conventions(fc.attrs)
+            iv = np.asarray(fc["static_intervals"].values) if "static_intervals" in fc else None
+    except Exception as exc:  # noqa: BLE001 - whatever the netCDF library raises, it is not a fieldcal result
+        raise InputError(f"not a netCDF field calibration ({type(exc).__name__})", file=path, fix=fix) from None
+    if kind != "calib-fieldcal-1" or iv is None or iv.ndim != 2 or iv.shape[1] != 2:
+        raise InputError("is not a field calibration with static_intervals(interval, bound)", file=path,
+                         field="static_intervals", fix=fix)
+    return iv
 
 
 def _diagnose_refusal(path, settings, out_dir, exc):
@@ -425,6 +450,8 @@ def main(argv=None):
     s.add_argument("recording")
     s.add_argument("--out", required=True)
     s.add_argument("--settings", help="JSON or YAML file overriding calib.diagnosis.DEFAULT_SETTINGS")
+    s.add_argument("--fieldcal", help="result.nc of 'calib fieldcal --out': diagnose on the static intervals that "
+                                      "calibration used (recordings without a segment table)")
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
     a = p.parse_args(argv)   # argparse's own usage errors exit 2

@@ -35,6 +35,8 @@ def report_markdown(rep: dict) -> str:
         return "\n".join(L) + "\n"
     L.append(f"Model: {rep.get('model_description', rep.get('model'))}")
     L.append(f"Noise: {rep.get('noise', {}).get('method', '')}")
+    if rep.get("segments_from"):
+        L.append(f"Segments: {rep['segments_from']}")
     L.append("")
     g = rep["goodness_of_fit"]
     L.append("## Goodness of fit")

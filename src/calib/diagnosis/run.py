@@ -45,6 +45,8 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
     with single_thread_blas():
         rep, prob = _diagnose_dataset(ds, out_dir, st, path, library_from)
     rep["elapsed_s"] = time.perf_counter() - t0
+    if ds.attrs.get("segments_from"):
+        rep["segments_from"] = str(ds.attrs["segments_from"])
     if out_dir is not None:
         out_dir = Path(out_dir)
         # the wall time stays out of the file, so that the same input gives the same report
@@ -97,18 +99,24 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
                                   "give a valid calib-recording-1 file")
         _write_refusal(rep, out_dir)
         return rep
+    segments_from = "the recording's segment table"
     if "segment_index" not in ds:
         try:
             if intervals is not None:
+                segments_from = (f"the {len(np.asarray(intervals).reshape(-1, 2))} static intervals of "
+                                 f"{intervals_source or 'the caller'}")
                 ds = detect.add_segment_table(ds, np.asarray(intervals, dtype=np.int64).reshape(-1, 2))
                 ds["segment_index"].attrs["intervals_from"] = intervals_source or "given"
             else:
                 ds = detect.add_segment_table(ds, detect.detect_in_recording(ds))
+                segments_from = "static detection of the diagnosis (calib.signal.detect; give --fieldcal to use " \
+                                "the intervals of a field calibration)"
         except Exception as exc:  # noqa: BLE001 - any detection failure is an inconclusive input
             rep = inconclusive_report(path, st, f"no segment table and static detection failed: {exc}",
                                       "add a segment table (segment_index, segment_kind)")
             _write_refusal(rep, out_dir)
             return rep
+    ds.attrs["segments_from"] = segments_from
     rep, _ = diagnose_dataset(ds, out_dir, st, path=path)
     return rep
 
