@@ -31,6 +31,11 @@ import numpy as np
 
 from calib.core.earth import STANDARD_GRAVITY
 
+#: parameters of the identified accelerometer norm model (Liu 2021 eq. 7 in its 9-parameter lower-triangular form)
+NORM_PARAMETERS = 9
+#: static poses that leave a degree of freedom to test that model: ``calib fieldcal`` (which calibrates from
+#: NORM_PARAMETERS but then says it has no redundancy) and ``calib diagnose`` (which needs this many) agree on it
+MIN_POSES_TO_TEST = NORM_PARAMETERS + 1
 PARAM_NAMES = ("Kx", "Ky", "Kz", "Exy", "Exz", "Eyx", "Eyz", "Ezx", "Ezy", "bx", "by", "bz")
 #: positions of the off-diagonal installation errors inside E, in parameter order
 OFFDIAG = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))

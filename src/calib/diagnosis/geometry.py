@@ -280,7 +280,8 @@ def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_
     st = [w for w in windows if w.kind == "static"]
     if len(st) < min_static:
         raise DiagnosisInputError(f"{src}: only {len(st)} static segments (at least {min_static} are needed to "
-                                  "calibrate the base model and test anything beyond it)",
+                                  "calibrate the base model and test anything beyond it; a field calibration of "
+                                  "the same file has no redundancy to check its model either)",
                                   "record more static positions (Liu 2021 uses 24)")
     vector = att_all is not None and all(w.attitude is not None and np.all(np.isfinite(w.attitude)) for w in windows)
     if has_angle and windows:

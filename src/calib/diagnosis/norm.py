@@ -15,6 +15,7 @@ from scipy.optimize import least_squares
 
 from calib.calibration import objectives as ob
 from calib.calibration.ellipsoid import fit_ellipsoid
+from calib.core.triad import MIN_POSES_TO_TEST
 from calib.core.earth import STANDARD_GRAVITY
 from calib.diagnosis.geometry import AXES, TO_MODEL, DiagnosisInputError, build_geometry, rate_readings
 from calib.diagnosis.identifiability import prepare_library
@@ -50,7 +51,7 @@ def setup_norm_problem(ds, settings=None) -> Problem:
     propagated to r; if the base model's reduced chi-square exceeds 2, the sigmas are scaled by its square root
     (the unexplained scatter is treated as noise) and the report says so."""
     st = {**DEFAULT_SETTINGS, **(settings or {})}
-    geom = build_geometry(ds, max_offset_s=0.0, min_static=max(st["min_static"], 10))
+    geom = build_geometry(ds, max_offset_s=0.0, min_static=max(st["min_static"], MIN_POSES_TO_TEST))
     if geom.n_samples / geom.fs < st["min_duration_s"]:
         raise DiagnosisInputError(f"{geom.source}: recording lasts {geom.n_samples / geom.fs:.1f} s, less than "
                                   f"{st['min_duration_s']:.0f} s", "record a longer session")

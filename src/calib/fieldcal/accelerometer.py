@@ -7,6 +7,7 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
+from calib.core.triad import MIN_POSES_TO_TEST, NORM_PARAMETERS
 from calib.calibration.ellipsoid import fit_ellipsoid
 from calib.signal import detect
 from calib.calibration.identifiability import rank_summary
@@ -271,9 +272,10 @@ def fit_accel_norm(accel, intervals, gravity: float, *, samples_per_interval: in
     else:
         cov = np.full((9, 9), np.nan)
         cov[np.ix_(free, free)] = sigma2 * np.linalg.pinv(J[:, free].T @ J[:, free])
-    if len(iv) <= 9:
-        msg = (f"{len(iv)} static poses for 9 accelerometer parameters: no redundancy, the residuals cannot reveal "
-               "a bad pose or a model error")
+    if len(iv) < MIN_POSES_TO_TEST:
+        msg = (f"{len(iv)} static poses for {NORM_PARAMETERS} accelerometer parameters: no redundancy, the residuals "
+               f"cannot reveal a bad pose or a model error (calib diagnose needs at least {MIN_POSES_TO_TEST} and "
+               "will answer inconclusive on this file)")
         notes.append(msg)
         log.warning("%s: %s", path or "input", msg)
     if det.not_determined or det.weak:
