@@ -76,7 +76,9 @@ def test_data_and_drift_stages_through_cluster_executor(tmp_path):
             assert p.sizes["test"] == 2 and p.sizes["generation"] == 5
             np.testing.assert_allclose(v["compensation"].sel(stream="pso_mean").values, mean_est, rtol=1e-12)
             assert np.array_equal(v["compensation"].sel(stream="uncompensated").values, np.zeros(3))
-            assert v["time"].values[-1] == pytest.approx(0.5)  # hours: the whole 0.5 h session was navigated
+            # the CF time coordinate is in seconds: the whole 0.5 h session of the config was navigated
+            assert v["time"].attrs["units"] == "s"
+            assert v["time"].values[-1] == pytest.approx(0.5 * 3600.0)
         for f in targets:
             assert Path(f).stat().st_size > 0
 
