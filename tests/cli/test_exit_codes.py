@@ -63,11 +63,12 @@ def test_success_is_0(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["errors.nc", "nav.nc", "nav.truth.json"]
 
 
-def test_diagnose_verdicts_map_to_0_and_3(tmp_path, capsys):
+def test_diagnose_verdicts_map_to_0_and_3(tmp_path, capsys, noise_record):
     settings = tmp_path / "s.json"
     settings.write_text(json.dumps({"figures": False}))
     clean = simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "clean.nc")
-    assert cli.main(["diagnose", str(clean), "--out", str(tmp_path / "d0"), "--settings", str(settings)]) == 0
+    assert cli.main(["diagnose", str(clean), "--out", str(tmp_path / "d0"), "--settings", str(settings),
+                     "--noise-record", noise_record]) == 0
     few = simulator.simulate_calibration_session({**SHORT_SESSION, "positions_per_phase": 1, "step_deg": 90.0}, 1,
                                                  tmp_path / "few.nc")
     assert cli.main(["diagnose", str(few), "--out", str(tmp_path / "d3"), "--settings", str(settings)]) == 3

@@ -18,6 +18,14 @@ SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "rev
 FAST = {"figures": False}
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _measured_slow_noise(noise_record):
+    """Every diagnosis of this file has the unit's long static record: the slow noise is measured, not fitted."""
+    FAST["noise_record"] = noise_record
+    yield
+    FAST.pop("noise_record", None)
+
+
 def _session(effects_cfg, **extra):
     return {**SHORT, **extra, "effects": effects_cfg, "conceal": True}
 
@@ -58,6 +66,7 @@ def _truth_in_interval(rep, eid, truth_params, widen=1.0):
 def test_null_session_is_adequate(null_session, shared):
     rep, _ = _diagnose(null_session, 11, library_from=shared)
     assert rep["verdict"] == "adequate", rep["verdict_reason"]
+    assert rep["explained"] is True and rep["open_search"]["significant"] == []
     assert rep["found"] == []
     assert rep["goodness_of_fit"]["before"]["p"] > 0.01
     ids = {u["effect"] for u in rep["untestable"]}
@@ -89,7 +98,7 @@ def test_injected_effect_is_found_with_its_magnitude(eid, tmp_path, shared):
     cfg = EFFECT_CASES[eid]
     fs = FastSession(_session(cfg), tmp_path)
     rep, _ = _diagnose(fs, 3, library_from=shared)
-    assert rep["verdict"] == "missing_physics"
+    assert rep["verdict"] == "missing_physics" and rep["explained"] is True, rep["verdict_reason"]
     keys = [f["effect"] for f in rep["found"]]
     assert eid in keys, (keys, rep["verdict_reason"])
     truth = effects.resolve(cfg)[eid]

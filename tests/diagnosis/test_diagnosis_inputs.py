@@ -57,15 +57,16 @@ def test_unreadable_file_is_inconclusive(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.nc", "out"]
 
 
-def test_report_files_and_cli(tmp_path):
+def test_report_files_and_cli(tmp_path, noise_record):
     path = simulator.simulate_calibration_session(
         {**SHORT, "effects": {"accel_scale_asymmetry": {"asym_ppm": [150.0, -120.0, 90.0]}}, "conceal": True}, 8,
         tmp_path / "a.nc")
     settings = tmp_path / "settings.json"
     settings.write_text(json.dumps({"figures": True}))
-    code = cli.main(["diagnose", str(path), "--out", str(tmp_path / "out"), "--settings", str(settings)])
+    code = cli.main(["diagnose", str(path), "--out", str(tmp_path / "out"), "--settings", str(settings),
+                     "--noise-record", noise_record])
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert code == 1 and rep["verdict"] == "missing_physics"
+    assert code == 1 and rep["verdict"] == "missing_physics" and rep["explained"] is True
     assert "accel_scale_asymmetry" in {f["effect"] for f in rep["found"]}
     md = (tmp_path / "out" / "report.md").read_text()
     assert "accel_scale_asymmetry" in md and "Untestable" in md

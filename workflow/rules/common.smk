@@ -70,4 +70,5 @@ def diagnosis_input(wildcards):
         if "fieldcal" in rec:
             out["fieldcal"] = f"{R}/calibration/fieldcal.nc"
         return out
-    return {"recording": f"{R}/data/calibration_session.nc"}
+    # the synthetic unit's long static record: the measured slow noise of the adequacy tests
+    return {"recording": f"{R}/data/calibration_session.nc", "noise_record": f"{R}/data/static_check.nc"}

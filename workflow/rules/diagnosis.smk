@@ -26,6 +26,8 @@ rule diagnose:
 
 rule diagnosis_proof:
     """Concealed-effect sessions diagnosed blind over many noise seeds; detection power."""
+    input:
+        noise_record=f"{R}/data/static_check.nc",   # the unit's long static record: measured slow noise
     output:
         proof=f"{R}/proof/proof.json",
         table=report(f"{R}/proof/proof.csv", category="6 Diagnosis", caption="../report/proof.rst"),

@@ -6,7 +6,8 @@ from calib.io.netcdf import provenance
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):
     pr = p.proof
-    diagnosis_study.proof_stage(p.out, pr["n_seeds"], p.seed, p.settings, pr.get("sessions") or None,
+    settings = {**p.settings, "noise_record": snakemake.input.noise_record}  # the unit's measured slow noise
+    diagnosis_study.proof_stage(p.out, pr["n_seeds"], p.seed, settings, pr.get("sessions") or None,
                                 pr["power_seeds"], workers=snakemake.threads, base=p.session, site=p.site,
                                 prov=provenance(snakemake.rule, dict(p.items()), seed=p.seed),
-                                metrics_path=snakemake.output.metrics)
+                                metrics_path=snakemake.output.metrics, enforce=pr.get("enforce", True))

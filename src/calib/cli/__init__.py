@@ -7,7 +7,7 @@
     calib calibrate RECORDING.nc --out DIR [--quick] [--noise-record LONG_STATIC.nc]
     calib fieldcal RECORDING.nc [--settings S.yaml] [--out result.nc]
     calib navigate RECORDING.nc --out errors.nc [--calibration DIR/default_calibration.nc]
-    calib diagnose RECORDING.nc --out DIR [--settings FILE.yaml|json]
+    calib diagnose RECORDING.nc --out DIR [--settings FILE.yaml|json] [--noise-record LONG_STATIC.nc]
 
 Every recording is checked before any fit (format, time coordinate, masked samples, and the physical
 plausibility of its magnitudes for the declared units: calib.signal.plausibility; --force turns the
@@ -243,6 +243,9 @@ def cmd_diagnose(a):
     except InputError as exc:
         _diagnose_refusal(a.recording, settings, a.out, exc)
         raise
+    if a.noise_record:   # a long static record of the same unit: the measured slow noise of the adequacy tests
+        _recording(a.noise_record, a.force, "noise record")
+        settings = {**(settings or {}), "noise_record": str(a.noise_record)}
     intervals = None
     if a.fieldcal:   # the static intervals the field calibration used: one answer per file
         intervals = _fieldcal_intervals(a.fieldcal)
@@ -452,6 +455,9 @@ def main(argv=None):
     s.add_argument("--settings", help="JSON or YAML file overriding calib.diagnosis.DEFAULT_SETTINGS")
     s.add_argument("--fieldcal", help="result.nc of 'calib fieldcal --out': diagnose on the static intervals that "
                                       "calibration used (recordings without a segment table)")
+    s.add_argument("--noise-record", default=None,
+                   help="long static record of the same unit: its Allan deviation measures the slow noise between "
+                        "windows; without it a misfit within what slow noise could do is 'inconclusive'")
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
     a = p.parse_args(argv)   # argparse's own usage errors exit 2

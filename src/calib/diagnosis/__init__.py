@@ -37,9 +37,23 @@ Method
    sensor term are marginalised over the slow-noise parameters,
    :func:`calib.diagnosis.analysis.slow_se_marginal`), and how the base parameters moved (in their standard
    errors).
-5. **Report** (:mod:`calib.diagnosis.report`). verdict (``adequate`` | ``missing_physics`` | ``inconclusive``),
-   ``found[]``, ``absent[]`` (tested, with 95 % upper bounds), ``untestable[]`` (why, and the experiment that
-   would make it testable).
+5. **Adequacy on the measured noise** (:mod:`calib.diagnosis.adequacy`). The noise of every window mean is
+   *measured*: the Allan deviation of the session's static samples (fast noise) and, for the slow noise between
+   windows, a long static record of the same unit (``noise_record`` setting, ``calib diagnose --noise-record``;
+   the upper end of its 95 % Allan band); the level and slow part the search estimates from the window means,
+   and the norm model's scaling to the scatter of its segment means, are reported (``overdispersion``) but never
+   used to pass a test. chi-square tests of the final model on the whole record, per (sensor, axis), per segment
+   class (static, rotation) and per first / last third of the session, Holm step-down at ``adequacy_alpha``.
+6. **Beyond the library** (:mod:`calib.diagnosis.generic`): the residuals of the final model are tested against
+   generic bases (time, scale in time, gravity direction to degree 4, rate, per-stop attitude); a library term
+   is accepted as the explanation only when none stays significant. Rival forms of a found term that fit this
+   path as well are reported (``form_alternatives``) with the experiment that separates them.
+7. **Report** (:mod:`calib.diagnosis.report`). verdict and exit code of ``calib diagnose``: ``adequate`` (0),
+   ``missing_physics`` (1: the found terms explain the data, ``explained: true``), ``unexplained`` (3: misfit
+   is left after the best library model; ``unexplained[]`` says where -- sensor, axis, segment class, part of
+   the session or generic family -- its size and shape), ``inconclusive`` (3: the data cannot decide, e.g. a
+   misfit within what unmeasured slow noise could do, or too few segments). ``found[]``, ``absent[]`` (tested,
+   with 95 % upper bounds), ``untestable[]`` (why, and the experiment that would make it testable).
 
 The concealed-effect proof, its scoring against the truth sidecars and the real-data runs are studies
 (:mod:`calib.studies.diagnosis_proof`, :mod:`calib.studies.diagnosis_score`,

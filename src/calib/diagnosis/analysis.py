@@ -8,7 +8,9 @@ import math
 
 import numpy as np
 
+from calib.diagnosis.adequacy import adequacy, unexplained_entries
 from calib.diagnosis.fitting import fit
+from calib.diagnosis.generic import form_alternatives, open_search
 from calib.diagnosis.geometry import ROWS, SENSORS
 from calib.diagnosis.identifiability import discrimination_noncentrality, library_geometry, separating_segments
 from calib.diagnosis.library import EXPERIMENTS, build_library
@@ -78,9 +80,22 @@ def param_entries(prob: Problem, f: Fit, key, marginal: bool | None = None):
     idx = f.active.get(key, c.active) if key != "time_offset" else np.array([0])
     out = []
     for j, v, s in zip(idx, vals, se):
-        out.append({"name": c.names[j], "value": float(v), "ci95": [float(v - 1.96 * s), float(v + 1.96 * s)],
-                    "se": float(s), "unit": c.units[j], "axis": c.axes[j], "interval": how})
+        ent = {"name": c.names[j], "value": float(v), "ci95": [float(v - 1.96 * s), float(v + 1.96 * s)],
+               "se": float(s), "unit": c.units[j], "axis": c.axes[j], "interval": how}
+        if c.effect in IEEE_ASYMMETRY:
+            # the library's d = asym |x| is K(1 + asym) above zero and K(1 - asym) below: the field's scale-factor
+            # asymmetry (IEEE Std 528 / 1293) is (K+ - K-) / Kbar = 2 asym
+            ent["ieee"] = {"name": IEEE_ASYMMETRY[c.effect], "value": 2.0 * float(v),
+                           "ci95": [2.0 * float(v - 1.96 * s), 2.0 * float(v + 1.96 * s)], "unit": "ppm",
+                           "definition": "(K+ - K-) / Kbar, K+ and K- the scale factors for positive and negative "
+                                         "inputs, Kbar their mean"}
+        out.append(ent)
     return out
+
+
+#: the IEEE name of the library's asymmetry terms (their reported value is twice the internal parameter)
+IEEE_ASYMMETRY = {"accel_scale_asymmetry": "scale factor asymmetry (IEEE Std 1293)",
+                  "gyro_scale_asymmetry": "scale factor asymmetry (IEEE Std 528 / 952)"}
 
 
 def _aliases(prob: Problem, final: Fit, key, geometry_angles):
@@ -243,25 +258,55 @@ def analyse(prob: Problem) -> dict:
               "se_before": float(se_b[i]),
               "moved_by_se": float((final.theta[i] - base.theta[i]) / se_b[i]) if se_b[i] > 0 else 0.0}
              for i, nm in enumerate(prob.base_names)]
-    verdict, reason = "adequate", "the base model fits within the noise and no candidate term passes the tests"
-    if found:
-        verdict = "missing_physics"
-        reason = "terms beyond the base model are needed: " + ", ".join(f["key"] for f in found)
-    elif base.p < st["chi2_p_adequate"]:
-        verdict = "missing_physics"
-        reason = (f"the base model does not fit (chi2 p = {base.p:.2g}) and no term of the library explains the "
-                  "misfit: see 'locate'")
+    # adequacy on the measured noise (the session's Allan deviation, and a long static record's slow part when
+    # given); the noise the search estimated from the window means is only used to say "inconclusive"
+    adq = {"before": adequacy(prob, base), "after": adequacy(prob, final)}
+    adq["noise"] = prob.noise_basis
+    slow_measured = bool(st.get("noise_record")) and prob.kind == "vector"
+    # beyond the library: generic structure left beside the final model, and rival forms of what was found
+    search = open_search(prob, final)
+    rivals = form_alternatives(prob, final) if found else []
+    explained = adq["after"]["adequate"] and not search["significant"]
+    unexplained = [] if adq["after"]["adequate"] else unexplained_entries(prob, final, adq["after"])
+    unexplained += [{"name": f"{t['sensor']} {t['axis']}".strip() + f": {t['family']}", "scope": "generic",
+                     "sensor": t["sensor"], "axis": t["axis"], "family": t["family"], "chi2": t["chi2"],
+                     "dof": t["dof"], "p_holm": t["p_holm"], "shape": t["description"],
+                     "rms_residual": t["rms"], "rms_noise": float("nan"), "excess_rms": t["rms"], "unit": t["unit"]}
+                    for t in search["significant"]]
+    where = "; ".join(f"{u['name']} (chi2 {u['chi2']:.4g} on {u['dof']:.3g}, {u['shape']})" for u in unexplained[:4])
     raw = prob.raw_chi2
-    if raw is not None and raw[2] < st["chi2_p_adequate"]:
-        if found:
-            reason += (f"; note: the segment means scatter beyond the sensor noise (raw chi2 {raw[0]:.4g} on "
-                       f"{raw[1]}), the tests used sigmas scaled to that scatter: the findings are hypotheses")
+    scatter = (f"; the segment means scatter beyond the measured sensor noise (chi2 {raw[0]:.4g} on {raw[1]}): it may be "
+               "hand placement or motion during the static segments, or physics outside the library"
+               if raw is not None and raw[2] < st["chi2_p_adequate"] else "")
+    helped = (" after " + ", ".join(f["key"] for f in found) + " (which helped)") if found else ""
+    if not found and adq["before"]["adequate"] and not search["significant"]:
+        verdict, reason = "adequate", ("the base model fits within the measured noise in every subset tested and no "
+                                       "candidate term passes the tests")
+    elif found and explained:
+        verdict = "missing_physics"
+        reason = ("terms beyond the base model are needed and explain the data (the final model passes every "
+                  "adequacy test on the measured noise and no generic structure stays beside it): "
+                  + ", ".join(f["key"] for f in found))
+        if rivals:
+            reason += ("; on this path the data fit as well " + "; ".join(
+                f"with {r['alternative']} in place of {', '.join(r['replaces'])} (separate them: {r['experiment']})"
+                for r in rivals))
+    elif not slow_measured and adequacy(prob, final, L=prob.L)["adequate"]:
+        verdict = "inconclusive"
+        if prob.kind == "norm":
+            reason = (f"misfit remains{helped} beyond the noise measured within the static segments ({where}): the "
+                      f"segment means scatter {math.sqrt(max(prob.overdispersion, 1.0)):.3g} times more than it -- hand "
+                      "placement, motion during the segments, slow noise or physics outside the library; the data "
+                      "cannot tell which (longer, steadier static poses, or a recording with nominal attitudes, "
+                      "would)")
         else:
-            verdict = "inconclusive"
-            reason = (f"the segment means scatter beyond the sensor noise (raw chi2 {raw[0]:.4g} on {raw[1]}, reduced "
-                      f"{raw[0] / max(raw[1], 1):.3g}) and no term of the library explains the excess: it may be hand "
-                      "placement / motion during the static segments or physics outside the library; the data "
-                      "cannot tell which")
+            reason = (f"misfit remains{helped} beyond the noise measured within the segments ({where}), but within "
+                      "what slow noise between the segments could do, which this session cannot measure: a long "
+                      "static record of the same unit (noise_record setting, calib diagnose --noise-record) decides"
+                      + scatter)
+    else:
+        verdict = "unexplained"
+        reason = f"misfit remains{helped} that no term of the library explains: {where or 'see adequacy'}" + scatter
     separations = []
     tk = testable_keys(prob)
     if prob.kind == "vector" and "latitude_error" in tk and "gyro_g_sensitivity/gyro" in tk:
@@ -282,8 +327,12 @@ def analyse(prob: Problem) -> dict:
                      "constant vector per rotation axis; the static positions (g-sensitivity: pattern with the "
                      "gravity direction; latitude: tilt of the Earth-rate direction, scale pinned by the rotations) "
                      "and the table-angle harmonics (Earth-rate magnitude Omega cos L) separate them")})
+    over = {f"{t['sensor']} {t['axis']}": t["overdispersion"] for t in adq["after"]["tests"]
+            if t["scope"] == "sensor_axis"}
     return {
-        "verdict": verdict, "verdict_reason": reason,
+        "verdict": verdict, "verdict_reason": reason, "explained": bool(explained),
+        "unexplained": unexplained, "adequacy": adq, "overdispersion": over, "open_search": search,
+        "form_alternatives": rivals,
         "goodness_of_fit": gof,
         "locate": locate(prob, base),
         "identifiability": {"candidates": info, "pairwise_angles_deg": [

@@ -23,6 +23,7 @@ implementation of that noise model), used by :func:`gm_part`.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -300,3 +301,60 @@ def covariance_blocks(geom: Geometry, noise: NoiseFit, parts, cache=None):
             C[(si, a)] = c
             L[(si, a)] = np.linalg.cholesky(c)
     return C, L
+
+
+# ----------------------------------------------------------------------------------------------------------
+# measured slow noise: a long static record of the same unit
+# ----------------------------------------------------------------------------------------------------------
+_RECORD_MODELS: dict = {}
+
+
+def record_noise_models(path) -> dict:
+    """Per sensor, the noise model (:class:`calib.signal.noisecov.MeanNoiseModel`: white, quantisation and a
+    Gauss-Markov or random-walk slow part) fitted to the Allan deviation of a long static record of the same
+    unit (tau up to half its length), cached by path and modification time."""
+    from pathlib import Path
+
+    from calib.io import recording
+
+    p = Path(path)
+    key = (str(p.resolve()), p.stat().st_mtime_ns)
+    if key not in _RECORD_MODELS:
+        ds = recording.load(p)
+        models = {}
+        for s in SENSORS:
+            la = noisecov.long_record_allan(ds, s)
+            # the slow noise at the upper end of the record's 95 % Allan intervals: a record too short to resolve
+            # the bias instability must not make noise look like physics
+            hi = dataclasses.replace(la, adev=np.asarray(la.hi, float), lo=np.asarray(la.adev, float),
+                                     hi=np.asarray(la.hi, float) ** 2 / np.asarray(la.adev, float))
+            pc = noisecov.is_pulse_counter(ds, s)
+            models[s] = noisecov.fit_mean_noise([hi], Q=noisecov.PULSE_COUNTER_Q if pc else None, unit=la.unit,
+                                                source=f"upper 95 % Allan band of the long static record {p.name} "
+                                                       f"({la.n_samples / la.fs / 3600:.3g} h)")
+        _RECORD_MODELS.clear()
+        _RECORD_MODELS[key] = models
+    return _RECORD_MODELS[key]
+
+
+def with_measured_slow(noise: NoiseFit, geom: Geometry, path) -> NoiseFit:
+    """A copy of ``noise`` (fast noise from the session's own static segments) whose slow part per axis is the
+    one measured on the long static record ``path`` (never estimated from the window means)."""
+    import copy
+
+    models = record_noise_models(path)
+    out = copy.deepcopy(noise)
+    for s in SENSORS:
+        m = models[s]
+        if m.unit != geom.units_out[s]:
+            raise DiagnosisInputError(f"noise record {path}: '{s}' rate unit {m.unit!r} differs from the session's "
+                                      f"{geom.units_out[s]!r}", "give a long static record of the same unit")
+        for a in range(3):
+            if m.slow[a] == "gm":
+                out.slow[s][a] = (float(m.tc[a]), float(m.sigma[a]))
+            elif m.slow[a] == "rw":
+                out.slow[s][a] = (math.inf, float(m.K[a]))
+            else:
+                out.slow[s][a] = (math.inf, 0.0)
+    out.method = (noise.method.split(";")[0] + f"; slow part measured on the long static record {path}")
+    return out

@@ -232,6 +232,9 @@ def setup_norm_problem(ds, settings=None) -> Problem:
     prob.base_theta = th
     prob.noise_method = noise_method
     prob.overdispersion = over
+    prob.L_measured = {(0, 0): np.diag(sr)}   # the Allan-measured noise, before any scaling to the scatter
+    prob.noise_basis = ("measured within the static segments (white noise and quantisation of each mean); the slow "
+                        "noise between segments is not in the norm model's noise")
     prob.raw_chi2 = (chi0, dof0, float(stats.chi2.sf(chi0, max(dof0, 1))))
     prob.norm_allan = A
     prepare_library(prob)

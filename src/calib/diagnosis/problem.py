@@ -25,11 +25,14 @@ DEFAULT_SETTINGS = {
                                  # ones are kept when their standard error is not hopeless: dropping them
                                  # biased the lever-arm diagonal by their leakage, coverage 0.91 at 1e-2)
     "chi2_p_adequate": 0.01,     # base-model chi-square p below this -> the base model does not fit
+    "adequacy_alpha": 0.01,      # family-wise level of the adequacy tests (Holm over global, per sensor axis,
+                                 # per segment class, first/last third): a rejection leaves the data unexplained
     "min_static": 6,             # fewer static segments -> inconclusive
     "min_duration_s": 60.0,      # shorter recordings -> inconclusive
     "max_offset_s": 0.25,        # clock offsets tried [s]
     "max_steps": 6,
     "figures": True,
+    "noise_record": None,        # long static record of the same unit: the slow noise of the adequacy tests
 }
 
 
@@ -61,6 +64,8 @@ class Problem:
     norm_allan: object = None
     source_kind: str = ""
     last_fits: tuple | None = None              # (base, final) fits of the last analysis
+    L_measured: dict | None = None              # Cholesky factors of the measured noise (adequacy tests)
+    noise_basis: str = ""                       # what the measured noise rests on
 
     @property
     def n(self) -> int:

@@ -49,6 +49,45 @@ def report_markdown(rep: dict) -> str:
     L.append("Per sensor axis (before): " + "; ".join(
         f"{b['sensor']} {b['axis']}: {fmt(b['chi2'])} on {b['n_obs']}" for b in g["before"]["by_sensor_axis"]))
     L.append("")
+    adq = rep.get("adequacy", {}).get("after")
+    if adq:
+        L.append(f"## Adequacy of the final model (explained: {str(rep.get('explained')).lower()})")
+        L.append("")
+        L.append(f"{adq['method']}, family-wise level {adq['alpha']:g}.")
+        L.append("")
+        L.append("| subset | chi2 | dof | chi2/dof | p (Holm) | |")
+        L.append("|---|---|---|---|---|---|")
+        for t in adq["tests"]:
+            L.append(f"| {t['name']} | {fmt(t['chi2'])} | {t['dof']:.3g} | {t['overdispersion']:.3g} | "
+                     f"{fmt(t['p_holm'], 3)} | {'**fails**' if t['rejected'] else 'passes'} |")
+        L.append("")
+    srch = rep.get("open_search")
+    if srch and srch.get("tests"):
+        L.append("## Open search beyond the library (generic bases)")
+        L.append("")
+        L.append(f"{srch['method']}, family-wise level {srch['alpha']:g}.")
+        L.append("")
+        L.append("| sensor | axis | family | chi2 | dof | p (Holm) | |")
+        L.append("|---|---|---|---|---|---|---|")
+        for t in srch["tests"]:
+            L.append(f"| {t['sensor']} | {t['axis'] or '--'} | {t['family']} | {fmt(t['chi2'])} | {t['dof']:.3g} | "
+                     f"{fmt(t['p_holm'], 3)} | {'**structure left**' if t['significant'] else 'none'} |")
+        L.append("")
+    if rep.get("form_alternatives"):
+        L.append("## Forms this path cannot tell apart")
+        L.append("")
+        for r in rep["form_alternatives"]:
+            L.append(f"- {', '.join(r['replaces'])} or {r['alternative']} (BIC difference {r['delta_bic']:.3g}); "
+                     f"to separate them: {r['experiment']}")
+        L.append("")
+    if rep.get("unexplained"):
+        L.append("## Unexplained: where the rest of the misfit sits")
+        L.append("")
+        for u in rep["unexplained"]:
+            L.append(f"- {u['name']}: RMS residual {fmt(u['rms_residual'])} {u['unit']} against a noise of "
+                     f"{fmt(u['rms_noise'])} (excess {fmt(u['excess_rms'])}); best generic shape in time: "
+                     f"{u['shape']} ({100 * u.get('explained_fraction', 0):.0f} % of it)")
+        L.append("")
     L.append("## Where the misfit lives (base model)")
     L.append("")
     summ = rep.get("locate", {}).get("summary", [])
@@ -72,6 +111,10 @@ def report_markdown(rep: dict) -> str:
         for p in f["parameters"]:
             L.append(f"| {p['name']} | {fmt(p['value'], 5)} | [{fmt(p['ci95'][0], 5)}, {fmt(p['ci95'][1], 5)}] "
                      f"| {p['unit']} |")
+            if p.get("ieee"):
+                q = p["ieee"]
+                L.append(f"| {q['name']} [{p['axis']}] = {q['definition']} | {fmt(q['value'], 5)} | "
+                         f"[{fmt(q['ci95'][0], 5)}, {fmt(q['ci95'][1], 5)}] | {q['unit']} |")
         if f.get("tau_s"):
             L.append(f"| tau (profiled) | {f['tau_s']:g} | -- | s |")
         if f.get("undetermined_parameters"):
@@ -186,7 +229,8 @@ def _report_header(path, st):
 
 def inconclusive_report(path, st, reason, fix="") -> dict:
     rep = _report_header(path, st)
-    rep.update({"verdict": "inconclusive", "verdict_reason": reason, "fix": fix, "found": [], "absent": [],
+    rep.update({"verdict": "inconclusive", "verdict_reason": reason, "fix": fix, "explained": False,
+                "unexplained": [], "found": [], "absent": [],
                 "untestable": [], "figures": []})
     return rep
 

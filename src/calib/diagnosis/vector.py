@@ -14,7 +14,7 @@ from calib.diagnosis.geometry import (SENSORS, DiagnosisInputError, base_design,
                                       pulse_counter_channels, reduce_data, reduced_inputs)
 from calib.diagnosis.identifiability import prepare_library
 from calib.diagnosis.library import build_library
-from calib.diagnosis.noise import covariance_blocks, covariance_parts, fit_noise, reml_slow
+from calib.diagnosis.noise import covariance_blocks, covariance_parts, fit_noise, reml_slow, with_measured_slow
 from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, base_estimates
 
 def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
@@ -46,6 +46,16 @@ def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
     cache = library_from.cache if library_from is not None else {}
     _, L = covariance_blocks(geom, noise, parts, cache)        # first guess (Allan random walk)
     prob = Problem(geom, y, noise, parts, L, X0, [], readings, settings=st, cache=cache)
+    # the measured noise of the adequacy tests: the session's Allan deviation, and the slow part of a long static
+    # record of the same unit when there is one -- never a level estimated from the window means
+    if st.get("noise_record"):
+        _, prob.L_measured = covariance_blocks(geom, with_measured_slow(noise, geom, st["noise_record"]), parts,
+                                               cache)
+        prob.noise_basis = f"measured: the session's static segments and the long static record {st['noise_record']}"
+    else:
+        prob.L_measured = dict(L)
+        prob.noise_basis = ("measured within the session's static segments only (no long static record: the slow "
+                            "noise between windows is not measured)")
     if library_from is not None:
         prob.lib = library_from.lib
     else:

@@ -19,6 +19,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import xarray as xr
 
+from calib.core.errors import ResultCheckError
 from calib.core.progress import Progress
 from calib.diagnosis import DEFAULT_SETTINGS, diagnose_recording, is_shape_parameter
 from calib.figures import style as figures
@@ -28,7 +29,7 @@ from calib.studies import diagnosis_proof as proof
 from calib.studies import diagnosis_real as real
 
 #: the verdicts, in the order used for integer codes in the netCDF
-VERDICTS = ("adequate", "missing_physics", "inconclusive")
+VERDICTS = ("adequate", "missing_physics", "inconclusive", "unexplained")
 
 
 def check_settings(settings: dict | None, where: str = "diagnosis.settings") -> dict:
@@ -191,7 +192,8 @@ def power_figure(power: dict, path):
 
 
 def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=None, power_seeds: int = 0,
-                workers: int = 2, base=None, site=None, prov=None, metrics_path=None, log=print) -> dict:
+                workers: int = 2, base=None, site=None, prov=None, metrics_path=None, log=print,
+                enforce: bool = True) -> dict:
     """Run the concealed-effect proof and write its products into ``out_dir`` (see the module docstring).
 
     ``base``: the study's ``calibration_session`` config (path, noise, rate) and ``site``: its site; every proof
@@ -230,6 +232,13 @@ def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=
     log(f"wall time {out['_timings']['total_s']:.1f} s")
     if metrics_path:
         write_json(metrics, metrics_path)
+    failed = [f"{sess}: {k}" for sess, a in acc.items() for k, v in a.items()
+              if v is False or (isinstance(v, float) and v < 0.95)]
+    if failed and enforce:
+        raise ResultCheckError(f"the proof's acceptance does not hold: {'; '.join(failed)}", file=out_dir / "proof.md",
+                               field="diagnosis.proof", fix="read proof.md; a claimed rate that does not hold is a "
+                               "defect of the method, not of the proof (diagnosis.proof.enforce: false only to "
+                               "inspect it)")
     return out
 
 

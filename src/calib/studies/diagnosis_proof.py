@@ -28,6 +28,7 @@ from calib.io import recording
 from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
 from calib.sim import effects as sim_effects
 from calib.sim import simulator
+from calib.sim import unmodelled as sim_unmodelled
 from calib.studies.diagnosis_score import score
 from calib.core import seeds
 
@@ -47,8 +48,9 @@ class FastSession:
     only :func:`calib.studies.diagnosis_score.score` reads.
     """
 
-    def __init__(self, cfg: dict, workdir=None, template_seed: int = 0):
+    def __init__(self, cfg: dict, workdir=None, template_seed: int = 0, unmodelled=None, drop_vars=()):
         self.cfg = copy.deepcopy(cfg)
+        self.drop_vars = list(drop_vars or ())   # channels the recording does not have (e.g. no temperature)
         self._tmp = None
         if workdir is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="calib-diag-")
@@ -62,6 +64,12 @@ class FastSession:
         self.sim = simulator.build_calibration_simulator(self.cfg, template_seed)
         self.clean = self.sim.clean_increments()
         self.n = self.sim.n_samples
+        self.unmodelled = list(unmodelled or [])
+        if self.unmodelled:   # physics outside the library, by a path the diagnosis does not share
+            self.clean = sim_unmodelled.inject(self.sim, self.clean, self.unmodelled,
+                                               self.template["segment_index"].values,
+                                               self.template["segment_kind"].values, seed=template_seed)
+            self.truth["unmodelled"] = copy.deepcopy(self.unmodelled)
 
     def counts(self, seed: int):
         """Accelerometer and gyro counts of noise seed ``seed``."""
@@ -74,7 +82,7 @@ class FastSession:
         ds["accel"] = (ds["accel"].dims, acc, ds["accel"].attrs)
         ds["gyro"] = (ds["gyro"].dims, gyr, ds["gyro"].attrs)
         ds.attrs["_path"] = f"<{self.path.name} seed {seed}>"
-        return ds
+        return ds.drop_vars(self.drop_vars) if self.drop_vars else ds
 
     def truth_for(self, seed: int) -> dict:
         """The truth sidecar content of noise seed ``seed``."""
@@ -107,6 +115,17 @@ PROOF_SESSIONS = {
     "confounded_gravity_error": ("confounded", {"gravity_error": {"delta_g_m_s2": 5e-4}}, {}),
     "confounded_asymmetry_vs_quadratic": ("confounded", {"accel_scale_asymmetry": {"asym_ppm": [6.0, -5.0, 4.0]}},
                                           {}),
+    # physics outside the library (calib.sim.unmodelled, a path the diagnosis does not share): the right answer is
+    # explained = false ('unexplained' / 'inconclusive') or a finding whose rival form is disclosed
+    "unmodelled_scale_drift": ("unmodelled", {}, {"unmodelled": [
+        {"effect": "scale_drift", "sensor": "accel", "axis": "z", "ppm": 60.0}], "drop_vars": ["temperature"]}),
+    "unmodelled_periodic_gyro_bias": ("unmodelled", {}, {"unmodelled": [
+        {"effect": "periodic_bias", "sensor": "gyro", "axis": "x", "amplitude": 0.3, "period_s": 1200.0}]}),
+    "unmodelled_stop_attitude": ("unmodelled", {}, {"unmodelled": [{"effect": "stop_attitude", "arcsec": 3.0}]}),
+    "unmodelled_quartic": ("unmodelled", {}, {"unmodelled": [
+        {"effect": "quartic", "sensor": "accel", "axis": "y", "k4_ug_per_g4": 150.0}]}),
+    "unmodelled_bias_step": ("unmodelled", {}, {"unmodelled": [
+        {"effect": "bias_step", "sensor": "accel", "axis": "x", "step": 30.0}]}),
 }
 
 
@@ -136,13 +155,14 @@ def _proof_worker(args):
     name, seed_list, out_dir, settings, scale, eff_override, base = args
     kind = PROOF_SESSIONS[name][0]
     cfg = proof_config(name, eff_override, base)
+    spec, drop = cfg.pop("unmodelled", None), cfg.pop("drop_vars", ())
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="calib-proof-") as tmp:
-        fsn = FastSession(cfg, tmp)
+        fsn = FastSession(cfg, tmp, unmodelled=spec, drop_vars=drop)
         t_build = time.perf_counter() - t0
         # end to end: the simulator's own file through diagnose_recording, scored against its sidecar
         e2e_dir = Path(out_dir) / "end_to_end" / name if out_dir else None
-        if e2e_dir is not None and scale == 1.0:
+        if e2e_dir is not None and scale == 1.0 and kind != "unmodelled":   # (the template file holds no injection)
             rep0 = diagnose_recording(fsn.path, e2e_dir, {**(settings or {}), "figures": True})
             e2e = score(rep0, fsn.truth_path, kind)
         else:
@@ -182,6 +202,16 @@ def _summarise(res) -> dict:
     out["false_discovery_rate"] = fd / n if n else 0.0
     out["false_discovery_rate_ci99"] = _binom_ci(fd, n)
     out["named_exactly"] = sum(r.get("named_exactly", False) for r in rows)
+    verdicts = [r.get("verdict") for r in rows]
+    out["verdict_counts"] = {v: verdicts.count(v) for v in sorted(set(map(str, verdicts)))}
+    out["explained_rate"] = sum(bool(r.get("explained")) for r in rows) / n if n else 0.0
+    if res["kind"] == "null":      # the right verdict: adequate (nothing found and the base model fits)
+        out["verdict_right"] = verdicts.count("adequate")
+    elif res["kind"] == "single":  # the effect named and the final model passing every adequacy test
+        out["verdict_right"] = sum(bool(r["correct"]) and r.get("verdict") == "missing_physics" and
+                                   bool(r.get("explained")) for r in rows)
+    if "verdict_right" in out:
+        out["verdict_right_rate"] = out["verdict_right"] / n if n else 0.0
     cov = [c for r in rows for c in r["coverage"]]
     if cov:
         kc = sum(c["covered"] for c in cov)
@@ -346,17 +376,22 @@ def _acceptance(summary):
                 lo, hi = s["coverage_ci99"]
                 cov_ok = lo <= 0.95 <= hi
             acc[s["session"]] = {"named_correctly_ge_95pct": s["rate"] >= 0.95,
+                                 "named_and_explained_ge_95pct": s.get("verdict_right_rate", 0.0) >= 0.95,
                                  "coverage_consistent_with_95pct": cov_ok,
                                  "chi2_after_p_ge_0.01_rate": s["chi2_after_p_ge_0.01"]}
+        elif s["kind"] == "unmodelled":
+            acc[s["session"]] = {"never_explained_ge_95pct": s["rate"] >= 0.95}
         elif s["kind"] == "null":
-            acc[s["session"]] = {"false_discoveries_le_5pct": s["false_discovery_rate"] <= 0.05}
+            acc[s["session"]] = {"false_discoveries_le_5pct": s["false_discovery_rate"] <= 0.05,
+                                 "called_adequate_ge_95pct": s.get("verdict_right_rate", 0.0) >= 0.95}
         else:
             acc[s["session"]] = {"never_attributed_to_one_effect": s.get("attributed_to_one", 0) == 0}
     return acc
 
 
 def _proof_csv(summary) -> str:
-    cols = ["session", "kind", "n_seeds", "correct", "rate", "false_discovery_rate", "named_exactly", "coverage",
+    cols = ["session", "kind", "n_seeds", "correct", "rate", "verdict_right_rate", "explained_rate",
+            "false_discovery_rate", "named_exactly", "coverage",
             "coverage_n", "chi2_before_median", "chi2_after_median", "chi2_after_p_ge_0.01"]
     lines = [",".join(cols + ["found_counts"])]
     for s in summary:
@@ -373,13 +408,15 @@ def _proof_md(out) -> str:
     L = ["# Mismatch diagnosis: concealed-effect proof", "",
          f"{out['n_seeds']} noise seeds per session (seeds {out['first_seed']}.."
          f"{out['first_seed'] + out['n_seeds'] - 1}); {out['method']}.", "",
-         "| session | kind | correct | rate (99 % CI) | false disc. | coverage (n) | chi2 before / after (median) | "
-         "after p>=0.01 | found |", "|---|---|---|---|---|---|---|---|---|"]
+         "| session | kind | correct | rate (99 % CI) | right verdict | verdicts | false disc. | coverage (n) | "
+         "chi2 before / after (median) | after p>=0.01 | found |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in out["sessions"]:
         cov = f"{s['coverage']:.3f} ({s['coverage_n']})" if "coverage" in s else "--"
         ci = s["rate_ci99"]
         L.append(f"| {s['session']} | {s['kind']} | {s['correct']}/{s['n_seeds']} | {s['rate']:.3f} "
-                 f"[{ci[0]:.3f}, {ci[1]:.3f}] | {s['false_discovery_rate']:.3f} | {cov} | "
+                 f"[{ci[0]:.3f}, {ci[1]:.3f}] | {fmt(s.get('verdict_right_rate'), 3)} | "
+                 + ", ".join(f"{k} {v}" for k, v in s.get("verdict_counts", {}).items())
+                 + f" | {s['false_discovery_rate']:.3f} | {cov} | "
                  f"{s['chi2_before_median']:.1f} / {s['chi2_after_median']:.1f} | "
                  f"{fmt(s['chi2_after_p_ge_0.01'], 3)} | "
                  + "; ".join(f"{k} x{v}" for k, v in s.get("found_counts", {}).items()) + " |")

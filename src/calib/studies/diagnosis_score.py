@@ -37,7 +37,9 @@ def alias_group(entry):
 def score(report: dict, truth_sidecar, kind: str | None = None) -> dict:
     """Compare a diagnosis report with the truth sidecar of the session.
 
-    ``kind``: 'null' | 'single' | 'confounded' (default: 'null' without effects, else 'single').
+    ``kind``: 'null' | 'single' | 'confounded' | 'unmodelled' (default: 'null' without effects, else 'single').
+    'unmodelled' (physics outside the library): correct when the report is not ``explained`` or discloses a rival
+    form (``form_alternatives``).
     Returns: ``correct`` (null: nothing found; single: the injected effect named, alone or within the reported
     alias group; confounded: never attributed to one effect -- every finding names a group that holds the
     injected effect, or nothing is found and the effect is listed as untestable), ``named_exactly``,
@@ -49,10 +51,20 @@ def score(report: dict, truth_sidecar, kind: str | None = None) -> dict:
     found = report.get("found", [])
     false_disc = [f["key"] for f in found if not (alias_group(f) & injected)]
     res = {"kind": kind, "injected": sorted(injected), "found": [f["key"] for f in found],
-           "verdict": report.get("verdict"), "false_discoveries": false_disc,
+           "verdict": report.get("verdict"), "explained": bool(report.get("explained")),
+           "false_discoveries": false_disc,
            "chi2_before": report.get("goodness_of_fit", {}).get("before", {}).get("chi2"),
            "chi2_after": report.get("goodness_of_fit", {}).get("after", {}).get("chi2"),
            "chi2_after_p": report.get("goodness_of_fit", {}).get("after", {}).get("p"), "coverage": []}
+    if kind == "unmodelled":
+        # physics outside the library: right when the data are not called explained, or when what was found
+        # comes with its rival form disclosed (the experiment that separates them named)
+        res["correct"] = (not res["explained"]) or bool(report.get("form_alternatives"))
+        res["false_discoveries"] = []
+        res["named_exactly"] = False
+        res["unmodelled"] = [e.get("effect") for e in (truth_sidecar.get("unmodelled", []) if isinstance(
+            truth_sidecar, dict) else [])]
+        return res
     if kind == "null":
         res["correct"] = len(found) == 0
         res["named_exactly"] = res["correct"]

@@ -1,0 +1,288 @@
+"""Beyond the library: an open search of the residuals with generic bases, and the forms a finding cannot tell apart.
+
+The library (:mod:`calib.diagnosis.library`) holds named physics. A fit that adds library terms until the global
+chi-square passes can still be wrong physics that happens to absorb the misfit. Two checks guard against that:
+
+1. **Open search** (:func:`open_search`). After the final model, the residuals are tested against generic bases
+   that name no physics, per sensor and axis, each a family of per-sample terms ``d_i`` (input-referred, reduced
+   into observations exactly like the library's terms, :func:`calib.diagnosis.library._reduce_term`):
+
+   * ``time``: Legendre polynomials of degree 1-3 of the session time and sinusoids of periods span/k,
+     k = 1..6 -- a bias that moves in time (drift, oscillation, a step);
+   * ``scale in time``: the axis' own input times degree 1-2 polynomials of time -- a scale factor that moves;
+   * ``orientation`` (accelerometers): all monomials of degree 2-4 of the gravity direction components, i.e.
+     the spherical harmonics of degree <= 4 of the direction of the specific force;
+   * ``rate`` (gyros): the axis' rate squared, cubed, |w| and w|w| -- rate nonlinearity of any form;
+   * ``per static stop``: for the accelerometers, the residual components of each static stop perpendicular to
+     the measured gravity direction (what an attitude error of the stop produces), tested against the parallel
+     one.
+
+   Each family is projected out of the final design (whitened with the *measured* noise); the sum of squares of
+   the whitened residual in the remaining span is chi-square with its rank as degrees of freedom under the
+   null. The family of tests is controlled by Holm's step-down at ``adequacy_alpha``. A library term is accepted
+   as the explanation only when no generic structure stays significant beside it.
+
+2. **Form alternatives** (:func:`form_alternatives`). Some forms fit equally on a given path: a temperature
+   coefficient and a drift in time when the temperature moved monotonically; a quadratic nonlinearity plus a
+   scale asymmetry and a quartic one on a 45 deg grid. For each found term with a known rival form, the rival
+   is fitted in its place; when its BIC is within ``alias_delta_bic`` of the final model's (or better) it is
+   reported with the experiment that would separate the two.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+from scipy import stats
+
+from calib.diagnosis.adequacy import holm, measured_factors
+from calib.diagnosis.fitting import fit
+from calib.diagnosis.geometry import AXES, SENSORS, TO_MODEL
+from calib.diagnosis.library import _reduce_term, sample_context
+from calib.diagnosis.problem import Fit, Problem, base_estimates
+
+#: periods of the sinusoids of the time family: the span divided by these
+PERIOD_DIVISORS = (1, 2, 3, 4, 5, 6)
+
+
+def _time_basis(t, t0, span):
+    tau = 2.0 * (t - t0) / max(span, 1e-9) - 1.0
+    leg = [np.polynomial.legendre.Legendre.basis(k)(tau) for k in (1, 2, 3)]
+    per = []
+    for k in PERIOD_DIVISORS:
+        ph = 2.0 * math.pi * k * (t - t0) / max(span, 1e-9)
+        per += [np.cos(ph), np.sin(ph)]
+    return leg, per
+
+
+def generic_families(prob: Problem, final: Fit) -> list[dict]:
+    """The generic families of the vector model (module docstring), each ``{"family", "sensor", "axis",
+    "description", "S"}`` with ``S`` (n_obs, k) in the observations' units at the final fit's K E."""
+    if prob.kind != "vector":
+        return []
+    geom = prob.geom
+    cache = prob.__dict__.setdefault("_generic_ctx", {})
+    if "ctx" not in cache:
+        cache["ctx"] = sample_context(geom)
+    ctx = cache["ctx"]
+    M, _ = base_estimates(final.theta)
+    t = ctx.t
+    t0, span = float(t.min()), float(np.ptp(t))
+    leg, per = _time_basis(t, t0, span)
+    out = []
+    for s in SENSORS:
+        KE = np.asarray(M[s], float)
+        Kd = np.diag(KE).copy()
+        conv = TO_MODEL[geom.units_in[s]]
+        x = ctx.f if s == "accel" else ctx.w
+        xs = x / max(float(np.max(np.abs(x))), 1e-300)  # unit-free input (g or rate over its largest value)
+        for i in range(3):
+            def col(term):
+                d = np.zeros((t.size, 3))
+                d[:, i] = term
+                return _reduce_term(geom, ctx, d, s, Kd, conv)
+
+            fams = {"time": (leg + per, "bias moving in time (Legendre degree 1-3 and sinusoids of period "
+                                        "span/1..6)"),
+                    "scale in time": ([xs[:, i] * leg[0], xs[:, i] * leg[1]],
+                                      "scale factor moving in time (input x degree 1-2 polynomials of time)")}
+            if s == "accel":
+                u = ctx.f / np.maximum(np.linalg.norm(ctx.f, axis=1, keepdims=True), 1e-300)
+                mons = []
+                for deg in (2, 3, 4):
+                    for c in itertools.combinations_with_replacement(range(3), deg):
+                        mons.append(np.prod(u[:, list(c)], axis=1))
+                fams["orientation"] = (mons, "output depending on the direction of gravity beyond the linear "
+                                             "model (spherical harmonics of degree 2-4)")
+            else:
+                w = xs[:, i]
+                fams["rate"] = ([w**2, w**3, np.abs(w), w * np.abs(w)],
+                                "output depending on the rate beyond the linear model (w^2, w^3, |w|, w|w|)")
+            for fam, (terms, desc) in fams.items():
+                S = np.column_stack([col(term) for term in terms])
+                out.append({"family": fam, "sensor": s, "axis": AXES[i], "description": desc, "S": S})
+    return out
+
+
+def _orth(A, tol=1e-9):
+    if A.size == 0:
+        return np.zeros((A.shape[0], 0))
+    u, sv, _ = np.linalg.svd(A, full_matrices=False)
+    keep = sv > tol * (sv[0] if sv.size else 0.0)
+    return u[:, keep]
+
+
+def _stop_tests(prob: Problem, r_perp, final: Fit):
+    """Per-stop attitude test of the accelerometer static means: residual components perpendicular to the
+    gravity direction of each stop against the parallel one (chi-square of the perpendicular part)."""
+    geom, o = prob.geom, prob.geom.obs
+    si = SENSORS.index("accel")
+    stat = [j for j, w in enumerate(geom.windows) if w.kind == "static"]
+    if len(stat) < 3:
+        return None
+    # whitened residual per (window, axis) of the accel static means
+    idx = {}
+    for (s_, a), ids in o["blocks"].items():
+        if s_ != si:
+            continue
+        for k in ids:
+            if geom.windows[o["window"][k]].kind == "static" and o["row"][k] == 0:
+                idx[(o["window"][k], a)] = k
+    ctx = prob.__dict__.setdefault("_generic_ctx", {}).get("ctx")
+    if ctx is None:
+        return None
+    perp = par = 0.0
+    n_perp = n_par = 0
+    for j in stat:
+        if not all((j, a) in idx for a in range(3)):
+            continue
+        f = ctx.f[ctx.slices[j]].mean(axis=0)
+        u = f / max(np.linalg.norm(f), 1e-300)
+        z = np.array([r_perp[idx[(j, a)]] for a in range(3)])
+        zp = float(z @ u)
+        par += zp * zp
+        perp += float(z @ z) - zp * zp
+        n_par += 1
+        n_perp += 2
+    if n_par < 3 or par <= 0:
+        return None
+    F = (perp / n_perp) / (par / n_par)
+    p = float(stats.f.sf(F, n_perp, n_par))
+    return {"family": "per static stop", "sensor": "accel", "axis": "",
+            "description": "static stops scattering perpendicular to gravity more than along it (attitude errors "
+                           "of the stops: the table did not stop where the record says)",
+            "chi2": perp, "dof": float(n_perp), "statistic": f"F = {F:.3g} on ({n_perp}, {n_par})", "p": p}
+
+
+def open_search(prob: Problem, final: Fit, alpha: float | None = None) -> dict:
+    """Test the final fit's residuals against every generic family (module docstring) on the measured noise.
+    Returns ``{"tests": [...], "significant": [...], "alpha", "method"}``; each test has family, sensor, axis,
+    description, chi2, dof, p, p_holm, significant, and the RMS (output unit) of the structure it fits."""
+    alpha = float(prob.settings.get("adequacy_alpha", 0.01) if alpha is None else alpha)
+    if prob.kind != "vector" or final.X is None:
+        return {"tests": [], "significant": [], "alpha": alpha,
+                "method": "not run: the open search needs the vector model (nominal attitudes)"}
+    L = measured_factors(prob)
+    Xw = prob.whiten(final.X, L)
+    Q = _orth(Xw)
+    rw = prob.whiten(np.asarray(prob.y, float), L)
+    r_perp = rw - Q @ (Q.T @ rw)
+    tests = []
+    for fam in generic_families(prob, final):
+        G = prob.whiten(fam["S"], L)
+        G = G - Q @ (Q.T @ G)
+        U = _orth(G, 1e-7)
+        k = U.shape[1]
+        if k == 0:
+            continue
+        proj = U.T @ r_perp
+        c2 = float(proj @ proj)
+        # size of the structure in output units: the generic fit's prediction, unwhitened, RMS over its sensor
+        coef, *_ = np.linalg.lstsq(G, r_perp, rcond=None)
+        pred = fam["S"] @ coef
+        si = SENSORS.index(fam["sensor"])
+        m = prob.geom.obs["sensor"] == si
+        tests.append({k_: fam[k_] for k_ in ("family", "sensor", "axis", "description")} |
+                     {"chi2": c2, "dof": float(k), "p": float(stats.chi2.sf(c2, k)),
+                      "rms": float(np.sqrt(np.mean(pred[m] ** 2))), "unit": prob.geom.units_out[fam["sensor"]]})
+    st = _stop_tests(prob, r_perp, final)
+    if st is not None:
+        tests.append(st | {"rms": float("nan"), "unit": ""})
+    if not tests:
+        return {"tests": [], "significant": [], "alpha": alpha, "method": "no generic family could be formed"}
+    rej, adj = holm([t["p"] for t in tests], alpha)
+    for t, r, a in zip(tests, rej, adj):
+        t["p_holm"] = float(a)
+        t["significant"] = bool(r)
+    sig = [t for t in tests if t["significant"]]
+    return {"tests": tests, "significant": sig, "alpha": alpha,
+            "method": "generic bases projected out of the final design, chi-square of the whitened residual in "
+                      "their span on the measured noise; Holm step-down over the families"}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# form alternatives
+# ----------------------------------------------------------------------------------------------------------
+#: rival forms of found terms: (found keys that the rival replaces, rival name, builder id, experiment)
+RIVALS = [
+    ({"temperature_sensitivity/accel"}, "accelerometer scale factor and bias drifting linearly in time (no "
+     "temperature dependence)", ("drift", "accel"),
+     "a temperature profile that is not monotonic in time (warm the unit, then let it cool) or a second session "
+     "at another temperature separates a temperature coefficient from a drift in time"),
+    ({"temperature_sensitivity/gyro"}, "gyro scale factor and bias drifting linearly in time (no temperature "
+     "dependence)", ("drift", "gyro"),
+     "a temperature profile that is not monotonic in time (warm the unit, then let it cool) or a second session "
+     "at another temperature separates a temperature coefficient from a drift in time"),
+    ({"accel_quadratic_nonlinearity/accel", "accel_scale_asymmetry/accel"}, "fourth-order accelerometer "
+     "nonlinearity k4 x^4 (with a quadratic term)", ("quartic", "accel"),
+     "static positions at more distinct tilts per axis (e.g. 15 or 30 deg steps instead of 45 deg) separate x^4 "
+     "from x^2 and |x| x"),
+    ({"bias_drift/accel"}, "accelerometer bias drifting as a random walk or a slow oscillation (noise, not a "
+     "warm-up)", ("time", "accel"),
+     "a repeat of the session after a cold start, or a long static record of the same unit, separates a "
+     "repeatable warm-up from a random bias walk"),
+    ({"bias_drift/gyro"}, "gyro bias drifting as a random walk or a slow oscillation (noise, not a warm-up)",
+     ("time", "gyro"),
+     "a repeat of the session after a cold start, or a long static record of the same unit, separates a "
+     "repeatable warm-up from a random bias walk"),
+]
+
+
+def _rival_columns(prob: Problem, final: Fit, builder) -> np.ndarray | None:
+    kind, sensor = builder
+    ctx = prob.__dict__.setdefault("_generic_ctx", {}).get("ctx")
+    if ctx is None:
+        ctx = prob.__dict__["_generic_ctx"]["ctx"] = sample_context(prob.geom)
+    geom = prob.geom
+    M, _ = base_estimates(final.theta)
+    KE = np.asarray(M[sensor], float)
+    Kd = np.diag(KE).copy()
+    conv = TO_MODEL[geom.units_in[sensor]]
+    x = ctx.f if sensor == "accel" else ctx.w
+    xs = x / max(float(np.max(np.abs(x))), 1e-300)
+    t = ctx.t
+    tau = 2.0 * (t - t.min()) / max(float(np.ptp(t)), 1e-9) - 1.0
+    cols = []
+    for i in range(3):
+        if kind == "drift":
+            terms = [tau, xs[:, i] * tau]
+        elif kind == "quartic":
+            terms = [x[:, i] ** 4, x[:, i] ** 2]
+        else:  # time
+            leg, per = _time_basis(t, float(t.min()), float(np.ptp(t)))
+            terms = leg[:2] + per[:4]
+        for term in terms:
+            d = np.zeros((t.size, 3))
+            d[:, i] = term
+            cols.append(_reduce_term(geom, ctx, d, sensor, Kd, conv))
+    return np.column_stack(cols)
+
+
+def form_alternatives(prob: Problem, final: Fit) -> list[dict]:
+    """Rival forms of the found terms that fit this path as well (module docstring)."""
+    if prob.kind != "vector" or not final.terms:
+        return []
+    n = prob.n
+    dbic = float(prob.settings.get("alias_delta_bic", 2.0))
+    out = []
+    for keys, name, builder, experiment in RIVALS:
+        hit = [k for k in final.terms if k in keys]
+        if not hit:
+            continue
+        rest = [k for k in final.terms if k not in keys]
+        f0 = fit(prob, rest, delta=final.delta if "time_offset" in rest else None,
+                 taus={k: v for k, v in final.taus.items() if k in rest})
+        S = _rival_columns(prob, final, builder)
+        A = np.hstack([prob.whiten(f0.X), prob.whiten(S)])
+        yw = prob.wcache("y", lambda: prob.y)
+        coef, *_ = np.linalg.lstsq(A, yw, rcond=None)
+        r = yw - A @ coef
+        chi2 = float(r @ r)
+        extra = int(np.linalg.matrix_rank(A)) - int(np.linalg.matrix_rank(A[:, :f0.X.shape[1]]))
+        bic_alt = chi2 + (f0.k + extra) * math.log(n)
+        bic_fin = final.bic(n)
+        if bic_alt <= bic_fin + dbic:
+            out.append({"replaces": sorted(hit), "alternative": name, "chi2": chi2, "chi2_found": final.chi2,
+                        "delta_bic": bic_alt - bic_fin, "experiment": experiment})
+    return out
