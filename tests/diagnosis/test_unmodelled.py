@@ -138,3 +138,19 @@ def test_asymmetry_is_reported_in_the_ieee_definition(tmp_path, noise_record):
         q = p["ieee"]
         assert q["value"] == 2 * p["value"] and q["unit"] == "ppm"
         assert abs(q["value"] - truth[p["axis"]]) <= 2.576 * 2.0 * p["se"]   # inside its 99 % interval
+
+
+def test_the_proof_fails_when_its_seeds_reject_a_claim():
+    """A claimed rate of >= 95 % is rejected when the Clopper-Pearson 99 % interval lies wholly below it (here
+    10/20 named); 19/20 does not reject it; a confounded pair attributed to one effect once rejects 'never'."""
+    from calib.studies.diagnosis import rejected_claims
+    from calib.studies.diagnosis_proof import _binom_ci
+
+    def single(k, n):
+        return {"session": "s", "kind": "single", "rate": k / n, "rate_ci99": _binom_ci(k, n)}
+
+    assert rejected_claims([single(10, 20)]) and not rejected_claims([single(19, 20)])
+    assert not rejected_claims([single(3, 4)])           # four seeds cannot reject 95 % with one miss
+    null = {"session": "n", "kind": "null", "false_discovery_rate": 0.5, "false_discovery_rate_ci99": _binom_ci(50, 100)}
+    assert rejected_claims([null])
+    assert rejected_claims([{"session": "c", "kind": "confounded", "attributed_to_one": 1}])

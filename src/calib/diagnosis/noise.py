@@ -103,6 +103,12 @@ def fit_noise(geom: Geometry, y: dict, pulse_counter: dict | None = None) -> Noi
                 for _ in range(2):
                     w = np.sqrt(edf / 2.0) / np.maximum(B @ c + 3.0 * q**2 / tau**2, 1e-300)
                     c, _ = optimize.nnls(B * w[:, None], av * w)
+                if not c[0] > 0:
+                    # short static segments: few taus above 1 s, and the rate random walk took all of the
+                    # excess over quantisation; the white level is then fitted alone (K = 0) -- a channel is
+                    # flat only when its Allan variance never exceeds the quantisation's
+                    c1, _ = optimize.nnls(B[:, :1] * w[:, None], av * w)
+                    c = np.array([c1[0], 0.0])
                 Nq[a], Kq[a] = math.sqrt(c[0]), math.sqrt(c[1])
             Q[s], N[s] = np.full(3, q), Nq
             slow[s] = [(math.inf, float(Kq[a])) for a in range(3)]
