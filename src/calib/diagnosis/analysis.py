@@ -7,8 +7,9 @@ import copy
 import math
 
 import numpy as np
+from scipy import stats
 
-from calib.diagnosis.adequacy import adequacy, unexplained_entries
+from calib.diagnosis.adequacy import adequacy, measured_factors, unexplained_entries
 from calib.diagnosis.fitting import fit
 from calib.diagnosis.generic import form_alternatives, open_search
 from calib.diagnosis.geometry import ROWS, SENSORS
@@ -195,6 +196,46 @@ def refine_signatures(prob: Problem, final: Fit) -> Fit:
     return fit(prob, final.terms, taus=final.taus, delta_hint=final.delta if "time_offset" in final.terms else None)
 
 
+def _chi2_measured(prob: Problem, f: Fit):
+    """chi-square and rank of the GLS refit of ``f``'s design on the measured noise (:mod:`adequacy`)."""
+    Lm = measured_factors(prob)
+    A = prob.whiten(f.X, Lm)
+    yw = prob.whiten(np.asarray(prob.y, float), Lm)
+    theta, _, rank = lstsq(A, yw)
+    r = yw - A @ theta
+    return float(r @ r), int(rank)
+
+
+def confirm_on_measured_noise(prob: Problem, final: Fit):
+    """The search selects terms on the noise it estimates from the window means; a term is kept only when its
+    likelihood-ratio test on the *measured* noise passes too (p < ``alpha``). The least significant unconfirmed
+    term is dropped and the rest refitted, until every kept term is confirmed. Returns the fit and the dropped
+    terms with their p-values."""
+    alpha = float(prob.settings.get("alpha", 0.001))
+    dropped = []
+    while final.terms and final.X is not None:
+        c2, r1 = _chi2_measured(prob, final)
+        worst = None
+        for k in final.terms:
+            rest = [t for t in final.terms if t != k]
+            f0 = fit(prob, rest, taus={t: v for t, v in final.taus.items() if t in rest},
+                     delta_hint=final.delta if "time_offset" in rest else None)
+            c0, r0 = _chi2_measured(prob, f0)
+            dfree = max(r1 - r0, 1) + (1 if prob.cand(k).kind in ("drift", "offset") else 0)
+            p = float(stats.chi2.sf(max(c0 - c2, 0.0), dfree))
+            if p >= alpha and (worst is None or p > worst[1]):
+                worst = (k, p)
+        if worst is None:
+            break
+        dropped.append({"key": worst[0], "p_measured_noise": worst[1],
+                        "why": "selected on the noise estimated from the window means, not significant on the "
+                               "measured noise"})
+        rest = [t for t in final.terms if t != worst[0]]
+        final = fit(prob, rest, taus={t: v for t, v in final.taus.items() if t in rest},
+                    delta_hint=final.delta if "time_offset" in rest else None) if rest else fit(prob, [])
+    return final, dropped
+
+
 def analyse(prob: Problem) -> dict:
     """Steps 1-5 on a set-up problem; returns the report content (without file paths)."""
     st = prob.settings
@@ -207,6 +248,7 @@ def analyse(prob: Problem) -> dict:
     final = fit(prob, final.terms, taus=final.taus,
                 delta_hint=final.delta if "time_offset" in final.terms else None) if final.terms else base
     final = refine_signatures(prob, final)
+    final, unconfirmed = confirm_on_measured_noise(prob, final)
     info, angles = library_geometry(prob)
     ang_map = {frozenset((a, b)): v for a, b, v in angles}
     groups = []
@@ -332,7 +374,7 @@ def analyse(prob: Problem) -> dict:
     return {
         "verdict": verdict, "verdict_reason": reason, "explained": bool(explained),
         "unexplained": unexplained, "adequacy": adq, "overdispersion": over, "open_search": search,
-        "form_alternatives": rivals,
+        "form_alternatives": rivals, "not_confirmed": unconfirmed,
         "goodness_of_fit": gof,
         "locate": locate(prob, base),
         "identifiability": {"candidates": info, "pairwise_angles_deg": [

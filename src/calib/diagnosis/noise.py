@@ -109,6 +109,12 @@ def fit_noise(geom: Geometry, y: dict, pulse_counter: dict | None = None) -> Noi
                     # flat only when its Allan variance never exceeds the quantisation's
                     c1, _ = optimize.nnls(B[:, :1] * w[:, None], av * w)
                     c = np.array([c1[0], 0.0])
+                if not c[0] > 0:
+                    # white noise below what the quantisation lets the Allan deviation resolve: its upper bound
+                    # (the upper 95 % Allan band less quantisation, the largest over tau) -- a larger sigma, never
+                    # an absent one
+                    hi = np.asarray(A.hi, float)[sel, a] ** 2 - 3.0 * q**2 / tau**2
+                    c = np.array([max(float(np.max(hi * tau)), 0.0), 0.0])
                 Nq[a], Kq[a] = math.sqrt(c[0]), math.sqrt(c[1])
             Q[s], N[s] = np.full(3, q), Nq
             slow[s] = [(math.inf, float(Kq[a])) for a in range(3)]
