@@ -308,7 +308,9 @@ def analyse(prob: Problem) -> dict:
     # beyond the library: generic structure left beside the final model, and rival forms of what was found
     search = open_search(prob, final)
     rivals = form_alternatives(prob, final) if found else []
-    explained = adq["after"]["adequate"] and not search["significant"]
+    # a generic rival (no physics named) that fits as well means the data do not establish the found term
+    generic_rival = [r for r in rivals if r.get("generic")]
+    explained = adq["after"]["adequate"] and not search["significant"] and not generic_rival
     unexplained = [] if adq["after"]["adequate"] else unexplained_entries(prob, final, adq["after"])
     unexplained += [{"name": f"{t['sensor']} {t['axis']}".strip() + f": {t['family']}", "scope": "generic",
                      "sensor": t["sensor"], "axis": t["axis"], "family": t["family"], "chi2": t["chi2"],
@@ -333,6 +335,12 @@ def analyse(prob: Problem) -> dict:
             reason += ("; on this path the data fit as well " + "; ".join(
                 f"with {r['alternative']} in place of {', '.join(r['replaces'])} (separate them: {r['experiment']})"
                 for r in rivals))
+    elif found and generic_rival and adq["after"]["adequate"] and not search["significant"]:
+        verdict = "inconclusive"
+        reason = ("the data fit within the measured noise with " + ", ".join(f["key"] for f in found)
+                  + ", but as well with " + "; ".join(f"{r['alternative']} in place of {', '.join(r['replaces'])}"
+                                                      for r in generic_rival)
+                  + ": the poses do not establish the term (" + generic_rival[0]["experiment"] + ")")
     elif not slow_measured and adequacy(prob, final, L=prob.L)["adequate"]:
         verdict = "inconclusive"
         if prob.kind == "norm":
@@ -375,6 +383,7 @@ def analyse(prob: Problem) -> dict:
         "verdict": verdict, "verdict_reason": reason, "explained": bool(explained),
         "unexplained": unexplained, "adequacy": adq, "overdispersion": over, "open_search": search,
         "form_alternatives": rivals, "not_confirmed": unconfirmed,
+        "degenerate_candidates": [{"key": k, "why": w} for k, w in prob.__dict__.get("degenerate", {}).items()],
         "goodness_of_fit": gof,
         "locate": locate(prob, base),
         "identifiability": {"candidates": info, "pairwise_angles_deg": [

@@ -26,7 +26,10 @@ chi-square passes can still be wrong physics that happens to absorb the misfit. 
    coefficient and a drift in time when the temperature moved monotonically; a quadratic nonlinearity plus a
    scale asymmetry and a quartic one on a 45 deg grid. For each found term with a known rival form, the rival
    is fitted in its place; when its BIC is within ``alias_delta_bic`` of the final model's (or better) it is
-   reported with the experiment that would separate the two.
+   reported with the experiment that would separate the two. On the norm model (few static poses taken one
+   after the other), each found term is also replaced by a *generic* basis -- biases drifting in time, or
+   stepping at a segment boundary -- and when that fits within ``generic_delta_bic`` the term is not established
+   (verdict ``inconclusive``).
 """
 from __future__ import annotations
 
@@ -105,6 +108,36 @@ def generic_families(prob: Problem, final: Fit) -> list[dict]:
     return out
 
 
+def norm_families(prob: Problem) -> list[dict]:
+    """The generic families of the norm model: a bias of one accelerometer axis moving in time (Legendre degree 1
+    and 2 of the session time) seen through the norm (dr/dd of each segment)."""
+    ng = prob.norm_generic
+    if prob.kind != "norm" or ng is None:
+        return []
+    t = np.asarray(ng["t"], float)
+    tau = 2.0 * (t - t.min()) / max(float(np.ptp(t)), 1e-9) - 1.0
+    out = []
+    for i in range(3):
+        S = np.column_stack([ng["G"][:, i] * tau, ng["G"][:, i] * (1.5 * tau**2 - 0.5)])
+        out.append({"family": "time", "sensor": "accel", "axis": AXES[i], "description":
+                    "accelerometer bias moving in time (Legendre degree 1-2), seen through the norm", "S": S})
+    return out
+
+
+def norm_step_columns(prob: Problem):
+    """Norm model: for every segment boundary j (at least two segments on each side), the columns of a step of
+    the three accelerometer biases between segment j - 1 and j, seen through the norm: ``[(j, S (m, 3))]``."""
+    ng = prob.norm_generic
+    if prob.kind != "norm" or ng is None:
+        return []
+    m = ng["G"].shape[0]
+    out = []
+    for j in range(2, m - 1):
+        H = (np.arange(m) >= j).astype(float)
+        out.append((j, ng["G"] * H[:, None]))
+    return out
+
+
 def _orth(A, tol=1e-9):
     if A.size == 0:
         return np.zeros((A.shape[0], 0))
@@ -160,16 +193,15 @@ def open_search(prob: Problem, final: Fit, alpha: float | None = None) -> dict:
     Returns ``{"tests": [...], "significant": [...], "alpha", "method"}``; each test has family, sensor, axis,
     description, chi2, dof, p, p_holm, significant, and the RMS (output unit) of the structure it fits."""
     alpha = float(prob.settings.get("adequacy_alpha", 0.01) if alpha is None else alpha)
-    if prob.kind != "vector" or final.X is None:
-        return {"tests": [], "significant": [], "alpha": alpha,
-                "method": "not run: the open search needs the vector model (nominal attitudes)"}
+    if final.X is None or (prob.kind != "vector" and prob.norm_generic is None):
+        return {"tests": [], "significant": [], "alpha": alpha, "method": "not run: no design to search beside"}
     L = measured_factors(prob)
     Xw = prob.whiten(final.X, L)
     Q = _orth(Xw)
     rw = prob.whiten(np.asarray(prob.y, float), L)
     r_perp = rw - Q @ (Q.T @ rw)
     tests = []
-    for fam in generic_families(prob, final):
+    for fam in generic_families(prob, final) + norm_families(prob):
         G = prob.whiten(fam["S"], L)
         G = G - Q @ (Q.T @ G)
         U = _orth(G, 1e-7)
@@ -186,7 +218,28 @@ def open_search(prob: Problem, final: Fit, alpha: float | None = None) -> dict:
         tests.append({k_: fam[k_] for k_ in ("family", "sensor", "axis", "description")} |
                      {"chi2": c2, "dof": float(k), "p": float(stats.chi2.sf(c2, k)),
                       "rms": float(np.sqrt(np.mean(pred[m] ** 2))), "unit": prob.geom.units_out[fam["sensor"]]})
-    st = _stop_tests(prob, r_perp, final)
+    steps = norm_step_columns(prob)
+    if steps:
+        # a step of the biases at an unknown segment boundary: the largest chi-square over the boundaries,
+        # Bonferroni over their number
+        best = None
+        for j, S in steps:
+            G = prob.whiten(S, L)
+            G = G - Q @ (Q.T @ G)
+            U = _orth(G, 1e-7)
+            if U.shape[1] == 0:
+                continue
+            c2 = float(np.sum((U.T @ r_perp) ** 2))
+            if best is None or c2 > best[1]:
+                best = (j, c2, U.shape[1])
+        if best is not None:
+            j, c2, k = best
+            tests.append({"family": "step", "sensor": "accel", "axis": "",
+                          "description": f"accelerometer biases stepping between static segments {j - 1} and {j}",
+                          "chi2": c2, "dof": float(k),
+                          "p": float(min(1.0, len(steps) * stats.chi2.sf(c2, k))), "rms": float("nan"),
+                          "unit": prob.geom.units_out["accel"]})
+    st = _stop_tests(prob, r_perp, final) if prob.kind == "vector" else None
     if st is not None:
         tests.append(st | {"rms": float("nan"), "unit": ""})
     if not tests:
@@ -259,8 +312,50 @@ def _rival_columns(prob: Problem, final: Fit, builder) -> np.ndarray | None:
     return np.column_stack(cols)
 
 
+def _bic_with(prob: Problem, f0: Fit, S: np.ndarray) -> tuple[float, float]:
+    """chi-square and BIC of the fit ``f0`` with the columns ``S`` added (GLS on the problem's noise)."""
+    A = np.hstack([prob.whiten(f0.X), prob.whiten(S)])
+    yw = prob.wcache("y", lambda: prob.y)
+    coef, *_ = np.linalg.lstsq(A, yw, rcond=None)
+    r = yw - A @ coef
+    chi2 = float(r @ r)
+    extra = int(np.linalg.matrix_rank(A)) - int(np.linalg.matrix_rank(A[:, :f0.X.shape[1]]))
+    return chi2, chi2 + (f0.k + extra) * math.log(prob.n)
+
+
+def generic_rivals(prob: Problem, final: Fit) -> list[dict]:
+    """Norm model: each found term replaced by a bias of every axis moving in time (no physics named). When that
+    fits as well (BIC within ``alias_delta_bic``), the data do not establish the term: few static poses taken
+    one after the other cannot tell an attitude-dependent term from a bias that moved during the session."""
+    fams = norm_families(prob)
+    if not fams or not final.terms:
+        return []
+    dbic = float(prob.settings.get("generic_delta_bic", 6.0))
+    drift = np.hstack([f["S"] for f in fams])
+    out = []
+    for k in final.terms:
+        rest = [t for t in final.terms if t != k]
+        f0 = fit(prob, rest, taus={t: v for t, v in final.taus.items() if t in rest}) if rest else fit(prob, [])
+        cands = [("accelerometer biases drifting in time (Legendre degree 1-2; a generic basis, no physics named)",
+                  *_bic_with(prob, f0, drift))]
+        for j, S in norm_step_columns(prob):
+            chi2, bic = _bic_with(prob, f0, S)
+            cands.append((f"accelerometer biases stepping between static segments {j - 1} and {j} (a generic "
+                          "basis, no physics named)", chi2, bic + math.log(prob.n)))   # + the step time
+        name, chi2, bic = min(cands, key=lambda c: c[2])
+        if bic <= final.bic(prob.n) + dbic:
+            out.append({"replaces": [k], "alternative": name, "generic": True, "chi2": chi2,
+                        "chi2_found": final.chi2, "delta_bic": bic - final.bic(prob.n),
+                        "experiment": "repeat the poses in another order (or return to the first pose at the end): "
+                                      "an attitude-dependent term repeats with the pose, a bias moving in time does "
+                                      "not"})
+    return out
+
+
 def form_alternatives(prob: Problem, final: Fit) -> list[dict]:
     """Rival forms of the found terms that fit this path as well (module docstring)."""
+    if prob.kind == "norm":
+        return generic_rivals(prob, final)
     if prob.kind != "vector" or not final.terms:
         return []
     n = prob.n

@@ -237,5 +237,7 @@ def setup_norm_problem(ds, settings=None) -> Problem:
                         "noise between segments is not in the norm model's noise")
     prob.raw_chi2 = (chi0, dof0, float(stats.chi2.sf(chi0, max(dof0, 1))))
     prob.norm_allan = A
+    # for the generic bases of calib.diagnosis.generic: dr/dd per segment and axis, and the segments' mid times
+    prob.norm_generic = {"G": G, "t": np.array([geom.time_s[w.i0] + 0.5 * w.n * geom.dt for w in wins])}
     prepare_library(prob)
     return prob

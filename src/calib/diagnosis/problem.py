@@ -17,6 +17,8 @@ DEFAULT_SETTINGS = {
     "min_delta_bic": 2.0,        # and its BIC gain must exceed this ("positive evidence")
     "alias_delta_bic": 10.0,     # another term within this BIC of the final model is an alias
     "alias_angle_deg": 5.0,      # visible signatures closer than this are aliases
+    "generic_delta_bic": 6.0,    # a found term must beat a generic basis (no physics) in its place by more than this
+                                 # BIC ("strong" evidence, Kass & Raftery 1995), else it is not established
     "alias_noncentrality": 13.0,  # found term beats the other by less than this expected chi2: aliases
                                   # ((1.96 + 1.645)^2: a 5 % test with 95 % power)
     "absorbed_untestable": 0.999,  # a term whose signature the base absorbs to more than this is untestable
@@ -66,6 +68,7 @@ class Problem:
     last_fits: tuple | None = None              # (base, final) fits of the last analysis
     L_measured: dict | None = None              # Cholesky factors of the measured noise (adequacy tests)
     noise_basis: str = ""                       # what the measured noise rests on
+    norm_generic: dict | None = None            # norm model: dr/dd per segment ("G") and segment times ("t")
 
     @property
     def n(self) -> int:

@@ -71,6 +71,45 @@ def renoise(prob: Problem, terms, taus=None, delta=0.0):
     prob.forget_whitened()
 
 
+#: the largest magnitude of each library parameter that physics allows in any inertial sensor a user calibrates
+#: here (MEMS to navigation grade), in the registry's units: a fit beyond it is a degenerate explanation (a free
+#: term trading against the base parameters), never a finding. |delta g|: the geodetic normal-gravity formula and
+#: local anomalies keep a site's g within 0.05 m s-2 of the value a user takes for it.
+PHYSICAL_LIMITS = {
+    "delta_g_m_s2": 0.05, "delta_lat_deg": 1.0, "offset_s": 1.0,
+    "k2_ug_per_g2": 1e5, "k3_ug_per_g3": 1e5, "k_cross_ug_per_g2": 1e5,
+    "asym_ppm": 5e4, "k_ppm_per_deg_s": 1e4, "lever_arms_m": 0.5, "G_deg_h_per_g": 3600.0,
+    "accel_bias_ug_per_degC": 2e3, "accel_scale_ppm_per_degC": 2e3, "gyro_bias_deg_h_per_degC": 360.0,
+    "gyro_scale_ppm_per_degC": 2e3, "accel_warmup_ug": 1e5, "gyro_warmup_deg_h": 3600.0,
+    "accel_trend_ug_per_h": 1e5, "gyro_trend_deg_h_per_h": 3600.0,
+}
+#: a fit whose chi-square falls below this fraction of its degrees of freedom fits the noise away
+CHI2_COLLAPSE = 0.01
+
+
+def degenerate(prob: Problem, f: Fit, key) -> str:
+    """Why the fit ``f`` with candidate ``key`` is a degenerate explanation ('' when it is not): a parameter
+    beyond :data:`PHYSICAL_LIMITS`, a chi-square collapsing below :data:`CHI2_COLLAPSE` of its degrees of freedom,
+    or a candidate the fit could not determine (rank deficient). The decision does not depend on the size of the
+    misfit the candidate removes."""
+    c = prob.cand(key)
+    if f.chi2 < CHI2_COLLAPSE * max(f.dof, 1):
+        return f"chi-square collapses to {f.chi2:.3g} on {f.dof} degrees of freedom (the term fits the noise away)"
+    sl = f.slices.get(key)
+    if sl is None:
+        return ""
+    vals = f.theta[sl]
+    idx = f.active.get(key, c.active) if key != "time_offset" else np.array([0])
+    if c.kind != "offset" and len(idx) != len(vals):
+        return "rank deficient: its parameters are not determined next to the base model"
+    for j, v in zip(idx, vals):
+        name = c.names[j]
+        lim = PHYSICAL_LIMITS.get(name.split("[")[0])
+        if lim is not None and abs(v) > lim:
+            return f"{name} = {v:.4g} {c.units[j]} is beyond physical sense (|value| <= {lim:g})"
+    return ""
+
+
 def stepwise(prob: Problem, base: Fit | None = None):
     """Forward selection by BIC with a likelihood-ratio test. Returns (final fit, steps, candidate table of
     the last step). Terms smooth in time are tested with the noise re-profiled (:func:`_slow_statistic`);
@@ -81,10 +120,11 @@ def stepwise(prob: Problem, base: Fit | None = None):
     steps = []
     keys = testable_keys(prob)
     last_table = []
+    refused = prob.__dict__.setdefault("degenerate", {})
     for _ in range(st["max_steps"]):
         table = []
         for k in keys:
-            if k in cur.terms:
+            if k in cur.terms or k in refused:
                 continue
             c = prob.cand(k)
             if is_slow(c) and prob.kind == "vector":
@@ -96,6 +136,10 @@ def stepwise(prob: Problem, base: Fit | None = None):
                 dchi = cur.chi2 - f.chi2
                 dk = f.k - cur.k
                 tau = None
+                why = degenerate(prob, f, k)
+                if why and dchi > 0:
+                    refused[k] = why
+                    continue
             if dk <= 0:
                 continue
             dbic = dchi - dk * math.log(n)
@@ -111,7 +155,13 @@ def stepwise(prob: Problem, base: Fit | None = None):
         best = ok[0]
         terms = cur.terms + [best["term"]]
         if best["fit"] is None:   # a slow term: re-estimate the noise with it, refit everything
-            renoise(prob, terms, {**cur.taus, best["term"]: best["tau"]} if best["tau"] else cur.taus)
+            taus_new = {**cur.taus, best["term"]: best["tau"]} if best["tau"] else cur.taus
+            trial = fit(prob, terms, taus=taus_new)
+            why = degenerate(prob, trial, best["term"])
+            if why:
+                refused[best["term"]] = why
+                continue
+            renoise(prob, terms, taus_new)
             new = fit(prob, terms)
         else:
             new = best["fit"]
