@@ -154,3 +154,32 @@ def test_the_proof_fails_when_its_seeds_reject_a_claim():
     null = {"session": "n", "kind": "null", "false_discovery_rate": 0.5, "false_discovery_rate_ci99": _binom_ci(50, 100)}
     assert rejected_claims([null])
     assert rejected_claims([{"session": "c", "kind": "confounded", "attributed_to_one": 1}])
+
+
+def test_half_sample_stamps_are_not_a_clock_offset(tmp_path, noise_record):
+    """A logger that stamps the centre of each sample's interval: the table angle read at the stamps is half a
+    sample later than at the interval starts. Declared (sample_time_convention = interval_centre), the diagnosis
+    places the motion correctly and names no clock offset; left undeclared, the same data show a spurious clock
+    offset of a fraction of a sample -- the convention is what separates bookkeeping from physics."""
+    import math
+
+    fs = FastSession({**SHORT, "effects": {}, "conceal": True}, tmp_path)
+    ds = fs.dataset(SEEDS[0])
+    # the table angle at the centre of each sample's interval, from the simulator's own kinematics
+    n, rate = ds.sizes["time"], float(ds.attrs["sample_rate_hz"])
+    half = fs.sim.trajectory.kinematics((np.arange(n) + 0.5) / rate,
+                                        math.radians(fs.sim.latitude_deg)).table_angle_deg
+    centred = ds.copy()
+    centred["table_angle"] = (ds["table_angle"].dims, half, ds["table_angle"].attrs)
+    centred.attrs["sample_time_convention"] = "interval_centre"
+    rep, _ = dg.diagnose_dataset(centred, None, {"figures": False, "noise_record": noise_record}, path="centre")
+    assert "time_offset" not in {f["effect"] for f in rep["found"]}, rep["verdict_reason"]
+    undeclared = centred.copy()
+    undeclared.attrs["sample_time_convention"] = "interval_start"
+    rep2, _ = dg.diagnose_dataset(undeclared, None, {"figures": False, "noise_record": noise_record}, path="start")
+    off = [f for f in rep2["found"] if f["effect"] == "time_offset"]
+    assert off, rep2["verdict_reason"]
+    p = off[0]["parameters"][0]
+    # a spurious clock offset of a fraction of a sample (the zeroing of the angle at the segment start absorbs
+    # part of the half-sample shift): clearly non-zero, never more than one sample
+    assert 3.0 * p["se"] < abs(p["value"]) <= 0.01

@@ -176,3 +176,16 @@ def test_long_writer_leaves_no_file_when_short_or_overflowing(tmp_path):
         with _writer(path, n=10) as w:
             w.append(np.zeros((10, 3)), np.zeros((10, 3)), np.zeros(10))  # opened without temperature
     assert _leftovers(tmp_path) == []
+
+
+def test_sample_time_convention(tmp_path):
+    """The three declared conventions are read; any other value is refused naming the attribute and the choices."""
+    for conv in recording.SAMPLE_TIME_CONVENTIONS:
+        ds = good_dataset()
+        ds.attrs["sample_time_convention"] = conv
+        assert recording.load(recording.write(ds, tmp_path / f"{conv}.nc")).attrs["sample_time_convention"] == conv
+    ds = good_dataset()
+    ds.attrs["sample_time_convention"] = "middle"
+    path = write_netcdf(ds, tmp_path / "bad.nc")
+    with pytest.raises(recording.RecordingError, match="interval_start, interval_centre, interval_end"):
+        recording.validate(path)

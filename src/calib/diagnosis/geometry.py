@@ -35,6 +35,7 @@ from scipy.interpolate import CubicSpline
 
 from calib.core import earth
 from calib.core.earth import STANDARD_GRAVITY
+from calib.io.recording import SAMPLE_INTERVAL_START, SAMPLE_TIME_CONVENTIONS
 from calib.signal.segments import RATE_UNIT_OF_INCREMENT, input_unit_for, rate_reading
 
 SENSORS = ("accel", "gyro")
@@ -106,6 +107,8 @@ class Geometry:
     notes: list = field(default_factory=list)
     max_offset_s: float = 0.0
     obs: dict = field(default_factory=dict)   # observation metadata (see build_observations)
+    sample_start_s: float = 0.0          # start of a sample's interval relative to its stamp [s] (the recording's
+                                         # sample_time_convention; 0 for interval_start)
 
     @property
     def static(self):
@@ -185,6 +188,11 @@ def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_
                                   "run the static detection, calib.signal.detect.add_segment_table)")
     fs = float(ds.attrs["sample_rate_hz"])
     dt = 1.0 / fs
+    conv_t = str(ds.attrs.get("sample_time_convention", SAMPLE_TIME_CONVENTIONS[0]))
+    if conv_t not in SAMPLE_INTERVAL_START:
+        raise DiagnosisInputError(f"{ds.attrs.get('_path', 'recording')}: sample_time_convention {conv_t!r} unknown",
+                                  f"one of {', '.join(SAMPLE_TIME_CONVENTIONS)}")
+    t_start = SAMPLE_INTERVAL_START[conv_t] * dt   # a sample's interval starts this long after its stamp [s]
     n = int(ds.sizes["time"])
     lat = float(ds.attrs["latitude_deg"])
     h = float(ds.attrs.get("height_m", 0.0))
@@ -256,9 +264,15 @@ def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_
             if has_angle:
                 j0, j1 = max(i0 - m_off, 0), min(i1 + m_off, n - 1)
                 cont = _stitch_angle(angle[j0:j1 + 1], si[j0:j1 + 1])
-                cont = cont - cont[i0 - j0]          # 0 at the segment start (the recording's convention)
-                th_seg = cont[i0 - j0:i1 - j0 + 1]   # angles at sample starts, i0..i1 (inclusive end)
-                spline = CubicSpline((np.arange(j0, j1 + 1) - i0) * dt, np.radians(cont))
+                tau = (np.arange(j0, j1 + 1) - i0) * dt   # stamps relative to the first sample's stamp
+                if t_start == 0.0:
+                    cont = cont - cont[i0 - j0]      # 0 at the segment start (the recording's convention)
+                    th_seg = cont[i0 - j0:i1 - j0 + 1]   # angles at sample starts, i0..i1 (inclusive end)
+                else:
+                    # the segment starts where its first sample's interval starts, t_start from that stamp
+                    cont = cont - float(CubicSpline(tau, cont)(t_start))
+                    th_seg = CubicSpline(tau, cont)(np.arange(i1 - i0 + 1) * dt + t_start)
+                spline = CubicSpline(tau, np.radians(cont))
             else:
                 th_seg = r * np.arange(i1 - i0 + 1) * dt
                 notes.append(f"{labels[s]}: no table_angle; nominal rate x time used, harmonics not formed")
@@ -292,6 +306,10 @@ def build_geometry(ds, *, max_offset_s: float = 0.25, min_static: int = 6, trim_
                     gravity_source=g_src, units_out=units_out, units_in=units_in, windows=windows,
                     model="vector" if vector else "norm", temperature=temp, time_s=time_s,
                     has_table_angle=has_angle, notes=notes, max_offset_s=max_off)
+    geom.sample_start_s = t_start
+    if conv_t != SAMPLE_TIME_CONVENTIONS[0]:
+        notes.append(f"sample_time_convention {conv_t}: each sample covers the interval starting "
+                     f"{t_start * 1e3:+.4g} ms from its stamp")
     build_observations(geom)
     return geom
 
@@ -397,7 +415,7 @@ def window_inputs(geom: Geometry, w: Window, delta_s: float = 0.0, latitude_deg=
     u, C0 = w.axis, w.attitude
     gyro_unit = TO_MODEL[geom.units_in["gyro"]]
     if w.spline is not None:
-        tk = k * geom.dt + delta_s
+        tk = k * geom.dt + delta_s + geom.sample_start_s   # the sample's interval, on the stamps of the table angle
         th0 = w.spline(tk)
         th1 = w.spline(tk + geom.dt)
         thm = w.spline(tk + 0.5 * geom.dt)

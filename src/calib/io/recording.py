@@ -16,6 +16,11 @@ dims ``time`` and ``axis`` (= x, y, z); optional ``segment``, ``row``, ``col``.
 * global attributes: ``latitude_deg`` (required), ``height_m``, ``gravity_m_s2``, ``sample_rate_hz``,
   ``source`` (synthetic | recorded), ``sensor``, ``Conventions = "CF-1.8 calib-recording-1"`` (files of
   earlier versions: ``conventions = "calib-recording-1"``, still read).
+* ``sample_time_convention`` (global attribute, optional): which interval the output of sample ``k`` stamped
+  ``t_k`` covers -- ``interval_start`` (the default, and the simulator's: ``[t_k, t_k + dt)``),
+  ``interval_centre`` (``[t_k - dt/2, t_k + dt/2)``) or ``interval_end`` (``[t_k - dt, t_k)``, a logger that
+  stamps a sample when it arrives). The table angle is read at the stamps; the diagnosis places each sample's
+  motion by this convention, so a half-sample offset of the stamps is not reported as a clock offset.
 * units are written in their CF (UDUNITS-2) spelling (``degree s-1``) and read back as the short names of
   :data:`UNITS` (``deg s-1``); both spellings are accepted on input.
 
@@ -59,6 +64,13 @@ TO_SI = {
     "deg": math.pi / 180.0,
 }
 LONG_FILE_SAMPLES = 2_000_000  # above this, writers omit the explicit time coordinate
+
+
+#: which interval the output of a sample covers relative to its time stamp (module docstring); the first is the
+#: default and the simulator's
+SAMPLE_TIME_CONVENTIONS = ("interval_start", "interval_centre", "interval_end")
+#: the start of a sample's interval relative to its stamp, in sample periods
+SAMPLE_INTERVAL_START = {"interval_start": 0.0, "interval_centre": -0.5, "interval_end": -1.0}
 
 
 class RecordingError(InputError):
@@ -225,6 +237,11 @@ def _header(path, nc) -> Header:
     height = _number(path, nc, "height_m", 0.0)
     if not math.isfinite(height):
         raise RecordingError(path, "height_m", f"value {height} is not finite")
+    conv_t = str(nc.getncattr("sample_time_convention")) if "sample_time_convention" in nc.ncattrs() else \
+        SAMPLE_TIME_CONVENTIONS[0]
+    if conv_t not in SAMPLE_TIME_CONVENTIONS:
+        raise RecordingError(path, "sample_time_convention", f"value {conv_t!r} unknown",
+                             f"one of {', '.join(SAMPLE_TIME_CONVENTIONS)} (default {SAMPLE_TIME_CONVENTIONS[0]})")
     kinds = {}
     for var in ("accel", "gyro"):
         if var not in nc.variables:

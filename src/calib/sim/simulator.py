@@ -532,6 +532,7 @@ def _recording_attrs(sim_cfg: dict, eff: dict, quantize: bool, extra: dict | Non
         "gyro_input_unit": "deg h-1",
         "output_rate_unit": "count s-1",
         "standard_gravity_m_s2": STANDARD_GRAVITY,
+        "sample_time_convention": "interval_start",   # sample k covers [t_k, t_k + dt) (calib.io.recording)
         "quantization": ("pulse counter: integer counts per sample, fractional remainder carried"
                          if quantize else "none (float counts per sample)"),
     }
