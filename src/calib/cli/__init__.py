@@ -2,7 +2,10 @@
 
     calib simulate calibration OUT.nc [--config config/config.yaml] [--seed N]
     calib simulate navigation OUT.nc [--hours H] [--force]
-    calib import SETTINGS.yaml OUT.nc
+    calib import SETTINGS.yaml OUT.nc [--topic /imu]
+    calib noise RECORDING.nc [--out DIR] [--kalibr imu.yaml]      (calib.cli.formats)
+    calib export CALIBRATION --format imutk|imucal|json --out PATH
+    calib apply CALIBRATION RECORDING.nc OUT.nc
     calib validate RECORDING.nc [--force]
     calib calibrate RECORDING.nc --out DIR [--quick] [--noise-record LONG_STATIC.nc]
     calib fieldcal RECORDING.nc [--settings S.yaml] [--out result.nc]
@@ -161,10 +164,20 @@ def _check_disk(out, hours, fs):
 
 def cmd_import(a):
     from calib.ingest import importers
+    from calib.io import recording
 
     load_mapping(a.settings, "import settings file")   # missing, folder, malformed YAML: refused with the line
     _output_file(a.out, "recording")                     # an output folder is never created silently
-    out = importers.import_recording(importers.load_settings(a.settings), a.out)
+    settings = importers.load_settings(a.settings)
+    if a.topic:   # ROS bags: the sensor_msgs/msg/Imu topic, overriding the settings' topic
+        if settings.get("format") != "rosbag":
+            raise InputError(f"--topic applies to ROS bags (format: rosbag), the settings say format "
+                             f"{settings.get('format')!r}", file=a.settings, field="format", fix="remove --topic")
+        settings["topic"] = a.topic
+    out = importers.import_recording(settings, a.out)
+    summary = recording.read_header(out).attrs.get("import_summary")
+    if summary:   # clock, jitter and dropped messages of a ROS bag: informational, on standard error
+        print(f"calib import: {summary}", file=sys.stderr)
     emit(f"wrote {out}")
 
 
@@ -418,6 +431,7 @@ def main(argv=None):
     s = sub.add_parser("import", help="import a real recording with a settings YAML (config/import/*.yaml)")
     s.add_argument("settings")
     s.add_argument("out")
+    s.add_argument("--topic", help="ROS bags: the sensor_msgs/msg/Imu topic (overrides the settings' topic)")
     s.set_defaults(fn=cmd_import)
     s = sub.add_parser("validate", help="check a calib-recording-1 file")
     s.add_argument("recording")
@@ -460,6 +474,8 @@ def main(argv=None):
                         "windows; without it a misfit within what slow noise could do is 'inconclusive'")
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
+    from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, IMU-TK, imucal)
+    formats.register(sub)
     a = p.parse_args(argv)   # argparse's own usage errors exit 2
     return _dispatch(a)
 

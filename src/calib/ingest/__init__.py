@@ -1,6 +1,6 @@
 """Import recordings made elsewhere into ``calib-recording-1`` (see :mod:`calib.io.recording`).
 
-One module per source format (``imu_tk``, ``imucal``, ``columns``, ``mikoff``, ``npz_columns``), each with
+One module per source format (``imu_tk``, ``imucal``, ``columns``, ``mikoff``, ``npz_columns``, ``rosbag``), each with
 ``import_<format>(settings) -> xarray.Dataset`` and its settings ``KEYS``; shared settings, checks and assembly in
 ``common``; the registry :data:`calib.ingest.importers.IMPORTERS` (a new format is one module plus one entry
 there). :func:`import_recording` (re-exported here from ``importers``) dispatches on ``settings['format']`` and

@@ -16,10 +16,11 @@ from calib.ingest.imu_tk import import_imu_tk
 from calib.ingest.imucal import import_imucal
 from calib.ingest.mikoff import import_mikoff
 from calib.ingest.npz_columns import import_npz_columns
+from calib.ingest.rosbag import import_rosbag
 
 #: format name (the settings' ``format``) -> its importer
 IMPORTERS = {"imu_tk": import_imu_tk, "imucal": import_imucal, "mikoff": import_mikoff,
-             "npz_columns": import_npz_columns, "columns": import_columns}
+             "npz_columns": import_npz_columns, "columns": import_columns, "rosbag": import_rosbag}
 FORMATS = tuple(IMPORTERS)
 
 
