@@ -16,7 +16,6 @@ Registered in :func:`calib.cli.main` by :func:`register` (one call), so the pars
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -24,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.errors import InputError, input_file, load_mapping
+from calib.ingest.common import sha256
 
 NOISE_FILES = ("noise.json", "noise.md", "allan.svg", "allan.png")
 
@@ -32,14 +32,6 @@ def _cli():
     import calib.cli as cli  # the package's helpers (emit, output checks, recording checks); imported late
 
     return cli
-
-
-def _sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for blk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(blk)
-    return h.hexdigest()
 
 
 # --------------------------------------------------------------------------- noise
@@ -122,7 +114,7 @@ def cmd_noise(a):
     kal = ieee952.kalibr_parameters(results["gyro"], results["accel"]) \
         if units["accel"] == "m s-2" and units["gyro"] == "rad s-1" else None
     src = Path(a.recording).name
-    rep = {"source": str(a.recording), "source_sha256": _sha256(a.recording), "calib_version": _version(),
+    rep = {"source": str(a.recording), "source_sha256": sha256(a.recording), "calib_version": _version(),
            "model": "AVAR(tau) = 3 Q^2/tau^2 + N^2/tau + (2 ln 2/pi) B^2 + K^2 tau/3 (IEEE Std 952-1997 Annex C)",
            "definitions": ieee952.DEFINITIONS, "sensors": {s: r.to_dict() for s, r in results.items()},
            "kalibr": kal, "notes": notes}
@@ -184,8 +176,8 @@ def cmd_apply(a):
     if cal.gyro is not None:
         cal.check_recording("gyro", h.gyro_units, h.gyro_kind, a.recording)
     prov = provenance("apply")
-    prov.update({"source_file": str(a.recording), "source_file_sha256": _sha256(a.recording),
-                 "calibration_file": str(a.calibration), "calibration_file_sha256": _sha256(a.calibration),
+    prov.update({"source_file": str(a.recording), "source_file_sha256": sha256(a.recording),
+                 "calibration_file": str(a.calibration), "calibration_file_sha256": sha256(a.calibration),
                  "calibration_kind": cal.kind, "calibration_applied": cal.how_to_apply()})
     fs = float(h.sample_rate_hz)
     if h.has_time:

@@ -257,28 +257,21 @@ def open_search(prob: Problem, final: Fit, alpha: float | None = None) -> dict:
 # ----------------------------------------------------------------------------------------------------------
 # form alternatives
 # ----------------------------------------------------------------------------------------------------------
+_TEMPERATURE_VS_TIME = ("a temperature profile that is not monotonic in time (warm the unit, then let it cool) or a "
+                        "second session at another temperature separates a temperature coefficient from a drift in "
+                        "time")
+_WARMUP_VS_WALK = ("a repeat of the session after a cold start, or a long static record of the same unit, separates "
+                   "a repeatable warm-up from a random bias walk")
 #: rival forms of found terms: (found keys that the rival replaces, rival name, builder id, experiment)
-RIVALS = [
-    ({"temperature_sensitivity/accel"}, "accelerometer scale factor and bias drifting linearly in time (no "
-     "temperature dependence)", ("drift", "accel"),
-     "a temperature profile that is not monotonic in time (warm the unit, then let it cool) or a second session "
-     "at another temperature separates a temperature coefficient from a drift in time"),
-    ({"temperature_sensitivity/gyro"}, "gyro scale factor and bias drifting linearly in time (no temperature "
-     "dependence)", ("drift", "gyro"),
-     "a temperature profile that is not monotonic in time (warm the unit, then let it cool) or a second session "
-     "at another temperature separates a temperature coefficient from a drift in time"),
+RIVALS = [r for s in ("accel", "gyro") for r in (
+    ({f"temperature_sensitivity/{s}"}, f"{'accelerometer' if s == 'accel' else s} scale factor and bias drifting "
+     "linearly in time (no temperature dependence)", ("drift", s), _TEMPERATURE_VS_TIME),
+    ({f"bias_drift/{s}"}, f"{'accelerometer' if s == 'accel' else s} bias drifting as a random walk or a slow "
+     "oscillation (noise, not a warm-up)", ("time", s), _WARMUP_VS_WALK))] + [
     ({"accel_quadratic_nonlinearity/accel", "accel_scale_asymmetry/accel"}, "fourth-order accelerometer "
      "nonlinearity k4 x^4 (with a quadratic term)", ("quartic", "accel"),
      "static positions at more distinct tilts per axis (e.g. 15 or 30 deg steps instead of 45 deg) separate x^4 "
      "from x^2 and |x| x"),
-    ({"bias_drift/accel"}, "accelerometer bias drifting as a random walk or a slow oscillation (noise, not a "
-     "warm-up)", ("time", "accel"),
-     "a repeat of the session after a cold start, or a long static record of the same unit, separates a "
-     "repeatable warm-up from a random bias walk"),
-    ({"bias_drift/gyro"}, "gyro bias drifting as a random walk or a slow oscillation (noise, not a warm-up)",
-     ("time", "gyro"),
-     "a repeat of the session after a cold start, or a long static record of the same unit, separates a "
-     "repeatable warm-up from a random bias walk"),
 ]
 
 

@@ -200,8 +200,8 @@ def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=
             Xb = Xb[:, np.any(Xb != 0, axis=0)]
             C0 = noise.N_shape[s][a] ** 2 * AN + noise.Q_shape[s][a] ** 2 * AQ
             L0 = np.linalg.cholesky(C0)
-            X1 = linalg.solve_triangular(L0, Xb, lower=True)
-            y1 = linalg.solve_triangular(L0, y[idx], lower=True)
+            X1 = linalg.solve_triangular(L0, Xb, lower=True, check_finite=False)
+            y1 = linalg.solve_triangular(L0, y[idx], lower=True, check_finite=False)
             U, sv, _ = np.linalg.svd(X1, full_matrices=False)
             X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
             pre.append((L0, X1, y1))

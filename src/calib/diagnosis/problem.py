@@ -80,7 +80,7 @@ class Problem:
         L = self.L if L is None else L
         out = np.empty_like(A)
         for key, idx in self.geom.obs["blocks"].items():
-            out[idx] = linalg.solve_triangular(L[key], A[idx], lower=True)
+            out[idx] = linalg.solve_triangular(L[key], A[idx], lower=True, check_finite=False)
         return out
 
     def sigma(self):
@@ -147,14 +147,14 @@ def lstsq(Aw, yw):
     nrm = np.linalg.norm(Aw, axis=0)
     nrm[nrm == 0] = 1.0
     An = Aw / nrm
-    Q, R, piv = linalg.qr(An, mode="economic", pivoting=True)
+    Q, R, piv = linalg.qr(An, mode="economic", pivoting=True, check_finite=False)
     d = np.abs(np.diag(R))
     rank = int(np.sum(d > 1e-9 * d[0])) if d.size else 0
     Rk = R[:rank, :rank]
-    z = linalg.solve_triangular(Rk, Q[:, :rank].T @ yw)
+    z = linalg.solve_triangular(Rk, Q[:, :rank].T @ yw, check_finite=False)
     theta = np.zeros(Aw.shape[1])
     theta[piv[:rank]] = z
-    Ri = linalg.solve_triangular(Rk, np.eye(rank))
+    Ri = linalg.solve_triangular(Rk, np.eye(rank), check_finite=False)
     cov = np.zeros((Aw.shape[1], Aw.shape[1]))
     cov[np.ix_(piv[:rank], piv[:rank])] = Ri @ Ri.T
     theta /= nrm

@@ -73,25 +73,16 @@ def report_markdown(rep: dict) -> str:
             L.append(f"| {t['sensor']} | {t['axis'] or '--'} | {t['family']} | {fmt(t['chi2'])} | {t['dof']:.3g} | "
                      f"{fmt(t['p_holm'], 3)} | {'**structure left**' if t['significant'] else 'none'} |")
         L.append("")
-    if rep.get("degenerate_candidates"):
-        L.append("## Candidates refused as degenerate explanations")
-        L.append("")
-        for d in rep["degenerate_candidates"]:
-            L.append(f"- {d['key']}: {d['why']}")
-        L.append("")
-    if rep.get("not_confirmed"):
-        L.append("## Selected on the estimated noise, not confirmed on the measured noise (dropped)")
-        L.append("")
-        for d in rep["not_confirmed"]:
-            L.append(f"- {d['key']}: p = {fmt(d['p_measured_noise'], 3)} on the measured noise")
-        L.append("")
-    if rep.get("form_alternatives"):
-        L.append("## Forms this path cannot tell apart")
-        L.append("")
-        for r in rep["form_alternatives"]:
-            L.append(f"- {', '.join(r['replaces'])} or {r['alternative']} (BIC difference {r['delta_bic']:.3g}); "
-                     f"to separate them: {r['experiment']}")
-        L.append("")
+    for key, title, line in (
+            ("degenerate_candidates", "Candidates refused as degenerate explanations",
+             lambda d: f"{d['key']}: {d['why']}"),
+            ("not_confirmed", "Selected on the estimated noise, not confirmed on the measured noise (dropped)",
+             lambda d: f"{d['key']}: p = {fmt(d['p_measured_noise'], 3)} on the measured noise"),
+            ("form_alternatives", "Forms this path cannot tell apart",
+             lambda r: f"{', '.join(r['replaces'])} or {r['alternative']} (BIC difference {r['delta_bic']:.3g}); "
+                       f"to separate them: {r['experiment']}")):
+        if rep.get(key):
+            L += [f"## {title}", ""] + [f"- {line(d)}" for d in rep[key]] + [""]
     if rep.get("unexplained"):
         L.append("## Unexplained: where the rest of the misfit sits")
         L.append("")
