@@ -138,6 +138,57 @@ def norm_step_columns(prob: Problem):
     return out
 
 
+def _vector_step_tests(prob: Problem, final: Fit, L, Q, r_perp) -> list[dict]:
+    """Vector model: per sensor axis, a step of the bias between two consecutive windows (at least two windows on
+    each side), the boundary scanned; the largest chi-square (1 degree of freedom after the final design is
+    projected out), Bonferroni over the boundaries. The column of a step is the constant-bias column of the axis
+    on the windows after the boundary (a window lies wholly on one side)."""
+    if prob.kind != "vector":
+        return []
+    geom, o = prob.geom, prob.geom.obs
+    ctx = prob.__dict__.setdefault("_generic_ctx", {})
+    if "ctx" not in ctx:
+        ctx["ctx"] = sample_context(geom)
+    M, _ = base_estimates(final.theta)
+    t_win = np.array([geom.time_s[w.i0] for w in geom.windows])
+    order = np.argsort(t_win, kind="stable")
+    rank_of = np.empty(len(order), int)
+    rank_of[order] = np.arange(len(order))
+    obs_rank = rank_of[np.asarray(o["window"])]
+    out = []
+    for s in SENSORS:
+        KE = np.asarray(M[s], float)
+        Kd = np.diag(KE).copy()
+        conv = TO_MODEL[geom.units_in[s]]
+        for i in range(3):
+            d = np.zeros((ctx["ctx"].t.size, 3))
+            d[:, i] = 1.0
+            B = _reduce_term(geom, ctx["ctx"], d, s, Kd, conv)
+            best, n_b = None, 0
+            for j in range(2, len(order) - 1):
+                col = np.where(obs_rank >= j, B, 0.0)
+                if not np.any(col):
+                    continue
+                g = prob.whiten(col, L)
+                g = g - Q @ (Q.T @ g)
+                nn = float(g @ g)
+                if nn <= 1e-12 * max(float(prob.whiten(col, L) @ prob.whiten(col, L)), 1e-300):
+                    continue
+                n_b += 1
+                c2 = float((g @ r_perp) ** 2 / nn)
+                if best is None or c2 > best[1]:
+                    best = (j, c2)
+            if best is None:
+                continue
+            j, c2 = best
+            w0 = geom.windows[order[j]]
+            out.append({"family": "step", "sensor": s, "axis": AXES[i],
+                        "description": f"bias stepping at t = {geom.time_s[w0.i0]:.0f} s (before window {w0.label})",
+                        "chi2": c2, "dof": 1.0, "p": float(min(1.0, n_b * stats.chi2.sf(c2, 1))),
+                        "rms": float("nan"), "unit": geom.units_out[s]})
+    return out
+
+
 def _orth(A, tol=1e-9):
     if A.size == 0:
         return np.zeros((A.shape[0], 0))
@@ -218,6 +269,7 @@ def open_search(prob: Problem, final: Fit, alpha: float | None = None) -> dict:
         tests.append({k_: fam[k_] for k_ in ("family", "sensor", "axis", "description")} |
                      {"chi2": c2, "dof": float(k), "p": float(stats.chi2.sf(c2, k)),
                       "rms": float(np.sqrt(np.mean(pred[m] ** 2))), "unit": prob.geom.units_out[fam["sensor"]]})
+    tests += _vector_step_tests(prob, final, L, Q, r_perp)
     steps = norm_step_columns(prob)
     if steps:
         # a step of the biases at an unknown segment boundary: the largest chi-square over the boundaries,

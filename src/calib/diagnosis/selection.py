@@ -99,14 +99,18 @@ def degenerate(prob: Problem, f: Fit, key) -> str:
     if sl is None:
         return ""
     vals = f.theta[sl]
+    se = np.sqrt(np.clip(np.diag(f.cov)[sl], 0.0, None))
     idx = f.active.get(key, c.active) if key != "time_offset" else np.array([0])
     if c.kind != "offset" and len(idx) != len(vals):
         return "rank deficient: its parameters are not determined next to the base model"
-    for j, v in zip(idx, vals):
+    for j, v, e in zip(idx, vals, se):
         name = c.names[j]
         lim = PHYSICAL_LIMITS.get(name.split("[")[0])
-        if lim is not None and abs(v) > lim:
-            return f"{name} = {v:.4g} {c.units[j]} is beyond physical sense (|value| <= {lim:g})"
+        # beyond physical sense when its 99 % interval excludes every sensible value (a weakly determined
+        # component whose estimate wanders past the limit within its error is not evidence of degeneracy)
+        if lim is not None and abs(v) - 2.576 * e > lim:
+            return (f"{name} = {v:.4g} +- {e:.2g} {c.units[j]} is beyond physical sense (|value| <= {lim:g}, "
+                    "excluded by its 99 % interval)")
     return ""
 
 

@@ -125,7 +125,7 @@ PROOF_SESSIONS = {
     "unmodelled_quartic": ("unmodelled", {}, {"unmodelled": [
         {"effect": "quartic", "sensor": "accel", "axis": "y", "k4_ug_per_g4": 150.0}]}),
     "unmodelled_bias_step": ("unmodelled", {}, {"unmodelled": [
-        {"effect": "bias_step", "sensor": "accel", "axis": "x", "step": 30.0}]}),
+        {"effect": "bias_step", "sensor": "accel", "axis": "x", "step": 60.0}]}),
 }
 
 
