@@ -103,3 +103,125 @@ def columns_settings(path, *, gyro_units="rad s-1", rate=None, with_time=True):
 @pytest.fixture
 def synthetic_session():
     return session
+
+
+# ----------------------------------------------------------------------------- static-pose protocols
+
+#: per-sample white noise of a typical MEMS IMU at 100 Hz (MPU-9150 class: about 400 ug/sqrt(Hz) and
+#: 0.005 deg/s/sqrt(Hz) over a 40-50 Hz band): accel [m s-2], gyro [rad s-1]
+MEMS_ACCEL_NOISE = 0.02
+MEMS_GYRO_NOISE = 1e-3
+#: raw counts of a +-16 g accelerometer and a +-2000 deg/s gyro (16-bit)
+COUNTS_PER_G = 2048.0
+COUNTS_PER_DEG_S = 16.4
+
+
+def protocol_session(seed, *, fs=100.0, rest_s=None, n_poses=None, min_wait_s=None, noise=None, units=None):
+    """A hand-made static-pose protocol with known truth, its parameters drawn from ``seed`` unless given:
+    initial rest ``rest_s`` (2-60 s), ``n_poses`` poses after it (9-40), each held for a wait drawn from
+    [``min_wait_s``, 5 s] (``min_wait_s`` 1-5 s), turns of 30-150 deg about random axes (1-2.5 s, smooth rate
+    profile; the sensor 5-20 cm from the centre of the turns, the hand lifting it by up to 10 cm meanwhile) each
+    followed by a 0.3 s settling wobble of up to 1 deg at 8 Hz; white noise ``noise`` (0.5-10, log-uniform)
+    x :data:`MEMS_ACCEL_NOISE` / :data:`MEMS_GYRO_NOISE`; ``units`` "SI" (m s-2, rad s-1) or "count" (raw
+    integers of a +-16 g accelerometer and a +-2000 deg/s gyro). Truth: IMU-TK's models ``a = T_a K_a (N - b_a)``
+    (T_a upper triangular) and ``w = T_g K_g (N - b_g)``, gains within a few % of nominal.
+
+    Returns a dict: ``accel``, ``gyro`` (raw, recording units), ``intervals`` (the true static holds
+    ``[start, stop)``), ``accel_scale_factors`` (input units per m s-2), ``units``, ``fs``, ``gravity``, the drawn
+    protocol (``rest_s``, ``n_poses``, ``min_wait_s``, ``noise``) and :func:`protocol_dataset` builds the
+    recording."""
+    rng = np.random.default_rng(seed)
+    rest_s = rng.uniform(2.0, 60.0) if rest_s is None else float(rest_s)
+    n_poses = int(rng.integers(9, 41)) if n_poses is None else int(n_poses)
+    min_wait_s = rng.uniform(1.0, 5.0) if min_wait_s is None else float(min_wait_s)
+    noise = float(np.exp(rng.uniform(np.log(0.5), np.log(10.0)))) if noise is None else float(noise)
+    units = ("SI", "count")[int(rng.integers(2))] if units is None else units
+    T = 1.0 / fs
+    ka = 1 + 0.02 * rng.standard_normal(3)
+    kg = 1 + 0.02 * rng.standard_normal(3)
+    Ta = misalign([*(0.01 * rng.standard_normal(3)), 0, 0, 0])
+    Tg = misalign(0.01 * rng.standard_normal(6))
+    q = rng.standard_normal(3)
+    C = _rot(q / np.linalg.norm(q), rng.uniform(0, np.pi))  # body -> level frame
+    gn = np.array([0.0, 0.0, G])
+    f, w, iv = [], [], []
+    n0 = 0
+
+    def hold(C, dur):
+        nonlocal n0
+        n = int(round(dur * fs))
+        f.append(np.tile(C.T @ gn, (n, 1)))
+        w.append(np.zeros((n, 3)))
+        iv.append((n0, n0 + n))
+        n0 += n
+
+    def move(C, e, phi, rate, accel, lift):
+        """A turn about body axis ``e`` by angles ``phi`` (rates ``rate``, angular accelerations ``accel``) about a
+        centre ``arm`` away from the sensor, while the hand lifts the unit by ``lift`` (level frame, m s-2)."""
+        nonlocal n0
+        for p, wr, ar, li in zip(phi, rate, accel, lift):
+            Cb = C @ _rot(e, p)
+            om, al = wr * e, ar * e
+            f.append(Cb.T @ (gn + li) + np.cross(al, arm) + np.cross(om, np.cross(om, arm)))
+        w.append(rate[:, None] * e[None, :])
+        n0 += len(phi)
+
+    arm = rng.standard_normal(3)
+    arm *= rng.uniform(0.05, 0.2) / np.linalg.norm(arm)  # sensor from the centre of the hand's turns [m]
+    hold(C, rest_s)
+    for _ in range(n_poses):
+        e = rng.standard_normal(3)
+        e /= np.linalg.norm(e)
+        theta = np.radians(rng.uniform(30, 150)) * rng.choice([-1, 1])
+        d = rng.uniform(1.0, 2.5)
+        tt = np.arange(int(round(d * fs))) * T
+        c, sn = np.cos(2 * np.pi * tt / d), np.sin(2 * np.pi * tt / d)
+        lift = np.outer(0.5 * rng.uniform(0.0, 0.2) * (2 * np.pi / d) ** 2 * c, [0.0, 0.0, 1.0])
+        move(C, e, theta / d * (tt - d / (2 * np.pi) * sn), theta / d * (1 - c), theta / d * 2 * np.pi / d * sn,
+             lift)
+        C = C @ _rot(e, theta)
+        e2 = rng.standard_normal(3)
+        e2 /= np.linalg.norm(e2)
+        amp, om, ds_ = np.radians(rng.uniform(0.0, 1.0)), 2 * np.pi * 8.0, 0.3
+        tt = np.arange(int(round(ds_ * fs))) * T
+        env, denv, d2env = (1 - tt / ds_) ** 2, -2 * (1 - tt / ds_) / ds_, 2 / ds_ ** 2
+        psi = amp * np.sin(om * tt) * env
+        dpsi = amp * (om * np.cos(om * tt) * env + np.sin(om * tt) * denv)
+        d2psi = amp * (-om ** 2 * np.sin(om * tt) * env + 2 * om * np.cos(om * tt) * denv + np.sin(om * tt) * d2env)
+        move(C, e2, psi, dpsi, d2psi, np.zeros((len(tt), 3)))
+        hold(C, rng.uniform(min_wait_s, 5.0))
+    f, w = np.vstack(f), np.concatenate(w)
+    n = len(f)
+    if units == "SI":
+        ca, cg = 1.0, 1.0
+        ba, bg = 0.1 * rng.standard_normal(3), 0.01 * rng.standard_normal(3)
+    else:
+        ca, cg = COUNTS_PER_G / 9.80665, COUNTS_PER_DEG_S * 180.0 / np.pi
+        ba, bg = 20.0 * rng.standard_normal(3), 20.0 * rng.standard_normal(3)
+    gain_a, gain_g = ka / ca, kg / cg  # output per input unit
+    acc = f @ np.linalg.inv(Ta @ np.diag(gain_a)).T + ba + ca * MEMS_ACCEL_NOISE * noise * rng.standard_normal((n, 3))
+    gyr = w @ np.linalg.inv(Tg @ np.diag(gain_g)).T + bg + cg * MEMS_GYRO_NOISE * noise * rng.standard_normal((n, 3))
+    if units == "count":
+        acc, gyr = np.round(acc), np.round(gyr)
+    return {"accel": acc, "gyro": gyr, "intervals": np.array(iv, dtype=np.int64), "units": units, "fs": fs,
+            "gravity": G, "accel_scale_factors": 1.0 / gain_a, "gyro_scale_factors": 1.0 / gain_g,
+            "rest_s": rest_s, "n_poses": n_poses, "min_wait_s": min_wait_s, "noise": noise}
+
+
+def protocol_dataset(s, *, protocol_attrs=False):
+    """The recording of a :func:`protocol_session` (in memory); counts carry their nominal ``approx_counts_per_g``
+    / ``approx_counts_per_deg_s``; ``protocol_attrs``: also the protocol timing as ``protocol_*`` attributes."""
+    from calib.io import recording
+
+    counts = s["units"] == "count"
+    extra = {}
+    if protocol_attrs:
+        extra = {"protocol_initial_rest_s": s["rest_s"], "protocol_min_wait_s": s["min_wait_s"],
+                 "protocol_n_poses": s["n_poses"]}
+    ds = recording.make_dataset(s["accel"], s["gyro"], sample_rate_hz=s["fs"], latitude_deg=45.0,
+                                accel_units="count" if counts else "m s-2", gyro_units="count" if counts else "rad s-1",
+                                gravity_m_s2=s["gravity"], source="recorded", extra_attrs=extra)
+    if counts:
+        ds["accel"].attrs["approx_counts_per_g"] = COUNTS_PER_G
+        ds["gyro"].attrs["approx_counts_per_deg_s"] = COUNTS_PER_DEG_S
+    return ds

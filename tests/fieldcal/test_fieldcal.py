@@ -4,7 +4,6 @@ forms, and the real recordings in ../shared/data against the numbers their tools
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -378,14 +377,11 @@ def test_xsens_gyro_gravity_directions(xsens):
 def test_mikoff_static_norm_rms(unit, ref):
     ds = _imported(f"mikoff_{unit}")
     settings = {"gravity_m_s2": 9.81, "evaluate": ["mikoff_standstill"]}
-    fieldcal.fieldcal_recording(ds, settings)  # warm-up (numba compile on a cold cache)
-    t0 = time.perf_counter()
     res = fieldcal.fieldcal_recording(ds, settings)
-    elapsed = time.perf_counter() - t0
     # measured as the authors' tool does: per sample, over its standstill samples (gyro norm < 0.13 rad/s,
-    # 60-sample guard); the calibration itself is fitted on our own detected intervals
+    # 60-sample guard); the calibration itself is fitted on our own detected intervals (its speed is a
+    # benchmark, benchmarks/bench_fieldcal.py, not a timed test)
     assert res.metrics["static_norm_rms_mikoff_standstill"] <= 1.01 * ref
-    assert elapsed < 2.0
     assert res.accel.identifiability.rank == 9
 
 

@@ -13,20 +13,21 @@ from calib.fieldcal.results import IMU_TK_DEFAULTS, MIN_INTERVALS
 
 
 def imu_tk_intervals(accel, fs: float, k: float, *, init_samples: int = 5000, window: int = 101,
-                     samples_per_interval: int = 100) -> np.ndarray:
+                     samples_per_interval: int = 100, stat=None) -> np.ndarray:
     """Static intervals as IMU-TK selects them (accelerometer only).
 
     Threshold ``k`` x the variance magnitude of samples ``[0, init_samples]`` (inclusive, as IMU-TK's
     ``DataInterval(0, n_init)``); centred window of ``window`` samples; IMU-TK scans only the samples with a
     full window, so an interval starts no earlier than ``window // 2`` and one still open at the end stops at
     ``n - window // 2 - 1``; intervals with ``stop - start < samples_per_interval`` are dropped. Returns
-    ``[start, stop)`` pairs (``stop`` = IMU-TK's ``end_idx``, the first non-static sample).
+    ``[start, stop)`` pairs (``stop`` = IMU-TK's ``end_idx``, the first non-static sample). ``stat``: the
+    accel's :func:`calib.signal.detect.moving_variance_norm` with ``window``, when the caller has it already.
     """
     accel = np.asarray(accel, dtype=np.float64)
     n = len(accel)
     h = window // 2
     thr = k * detect.variance_norm(accel[:init_samples + 1])
-    s = detect.moving_variance_norm(accel, window)
+    s = detect.moving_variance_norm(accel, window) if stat is None else stat
     iv = detect.runs(s < thr)
     if len(iv) == 0:
         return iv

@@ -3,6 +3,7 @@
 :class:`calib.calibration.identifiability.RankSummary`."""
 from __future__ import annotations
 
+import json
 import logging
 import math
 from dataclasses import dataclass, field
@@ -31,7 +32,11 @@ IMU_TK_DEFAULTS = {"k": list(range(2, 11)), "init_samples": 5000, "window": 101,
                    "min_intervals": 12}
 
 SETTINGS_KEYS = {"method", "gravity_m_s2", "detection", "samples_per_interval", "min_intervals",
-                 "recommended_intervals", "gyro", "evaluate", "rank_rtol", "units_check", "hold_undetermined"}
+                 "recommended_intervals", "gyro", "evaluate", "rank_rtol", "units_check", "hold_undetermined",
+                 "protocol"}
+#: the session's protocol timing (settings ``protocol:``, or recording attributes ``protocol_<key>``): what the
+#: detection chosen without settings uses when it is known
+PROTOCOL_KEYS = ("initial_rest_s", "min_wait_s", "n_poses")
 DETECTION_KEYS_DETECT = {"rule", "window_s", "min_interval_s", "threshold", "k", "init_s", "gyro_threshold",
                          "use_gyro", "onset_factor", "floor_percentile"}
 DETECTION_KEYS_IMU_TK = {"rule", "k", "init_samples", "window", "samples_per_interval", "min_intervals"}
@@ -223,7 +228,13 @@ class FieldCalResult:
     """Field calibration of one recording. See the module docstring for frames, models and units.
 
     ``apply(accel_raw, gyro_raw)`` gives calibrated specific force [m s-2] and rate [rad s-1] in the body
-    frame stated by ``frame``. ``metrics``: the key numbers (also in :meth:`summary`).
+    frame stated by ``frame``. ``metrics``: the key numbers (also in :meth:`summary`). ``detection_choice``: when
+    the settings gave no detection, how it was chosen (:mod:`calib.fieldcal.default_detection`): ``status``
+    (``passed``, or ``failed`` when no candidate's result passed the result checks and this one is returned for
+    inspection), ``line`` (the choice in one line), ``chosen`` and ``runner_up`` (their ``detection:`` settings,
+    interval and pose counts, residual), ``protocol`` (the timing used and where it came from, when known) and
+    ``candidates`` (every candidate tried, its residual or why it was not eligible; left out of :meth:`summary`);
+    None when the settings gave the detection.
     """
 
     method: str
@@ -239,6 +250,7 @@ class FieldCalResult:
     notes: list
     settings: dict
     units_check: dict | None = None
+    detection_choice: dict | None = None
 
     def apply(self, accel_raw, gyro_raw=None):
         a = self.accel.apply(accel_raw)
@@ -277,6 +289,8 @@ class FieldCalResult:
                         "gyro_identifiability": g.identifiability.as_dict() if g.identifiability else None})
         if self.units_check is not None:
             out["units_check"] = self.units_check
+        if self.detection_choice is not None:   # every candidate: detection_choice['candidates'], the netCDF attrs
+            out["detection_choice"] = {k: v for k, v in self.detection_choice.items() if k != "candidates"}
         for f in (self.accel, self.gyro):
             if f is not None and f.determination is not None:
                 out[f"{f.sensor}_determination"] = f.determination.as_dict()
@@ -349,6 +363,10 @@ class FieldCalResult:
             uc = self.units_check
             attrs["units_check"] = uc["status"] + (f": {uc['reason']}" if uc.get("reason") else "")
             attrs["units_check_closure_deg"] = np.asarray(uc.get("closure_deg") or [], dtype=float)
+        if self.detection_choice is not None:
+            attrs["detection_choice"] = self.detection_choice["line"]
+            attrs["detection_choice_status"] = self.detection_choice.get("status", "passed")
+            attrs["detection_choice_candidates"] = json.dumps(self.detection_choice["candidates"])
         for k, v in self.metrics.items():
             if isinstance(v, (int, float, str, np.integer, np.floating)) and not isinstance(v, bool):
                 attrs[f"metric_{k}"] = v

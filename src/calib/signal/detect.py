@@ -206,10 +206,17 @@ def _find_initial_rest(stat: np.ndarray, w: int, onset_factor: float, floor_pct:
     return max(onset - w, 0), floor
 
 
+def find_initial_rest(stat, w: int, onset_factor: float = 10.0, floor_percentile: float = 10.0):
+    """Length in samples of the initial rest found on a variance magnitude ``stat`` (window ``w``), the rule of
+    :func:`detect_static` without ``init_s`` (module docstring), and the noise floor it used:
+    ``(n0, floor)``."""
+    return _find_initial_rest(np.asarray(stat, dtype=np.float64), int(w), onset_factor, floor_percentile)
+
+
 def detect_static(accel, gyro, fs: float, min_interval_s: float = 1.0, threshold: float | None = None,
                   window_s: float = 1.0, *, k: float = 10.0, init_s: float | None = None,
                   gyro_threshold: float | None = None, use_gyro: bool = True, onset_factor: float = 10.0,
-                  floor_percentile: float = 10.0) -> StaticDetection:
+                  floor_percentile: float = 10.0, stat_accel=None, stat_gyro=None) -> StaticDetection:
     """Find static intervals of an (n, 3) accel and (n, 3) gyro record sampled at ``fs`` Hz.
 
     ``window_s`` (s): variance window, ``round(window_s * fs)`` samples made odd (IMU-TK: 101 at 100 Hz).
@@ -220,6 +227,8 @@ def detect_static(accel, gyro, fs: float, min_interval_s: float = 1.0, threshold
     gyro's over the same initial rest) -- it catches turns about the vertical, which barely move the accel.
 
     Units: any (raw counts or physical); thresholds are in the squared units of each triad.
+    ``stat_accel`` / ``stat_gyro``: the :func:`moving_variance_norm` of accel / gyro with this window, when the
+    caller has them already (several thresholds tried on one recording); computed here otherwise.
     """
     accel = np.asarray(accel, dtype=np.float64)
     if accel.ndim != 2 or accel.shape[1] != 3:
@@ -229,13 +238,13 @@ def detect_static(accel, gyro, fs: float, min_interval_s: float = 1.0, threshold
     n = accel.shape[0]
     w = window_samples(window_s, fs)
     min_samples = max(1, int(math.ceil(min_interval_s * fs - 1e-9)))
-    sa = moving_variance_norm(accel, w)
+    sa = moving_variance_norm(accel, w) if stat_accel is None else np.asarray(stat_accel, dtype=np.float64)
     sg = None
     if use_gyro:
         gyro = np.asarray(gyro, dtype=np.float64)
         if gyro.shape != accel.shape:
             raise ValueError(f"detect_static: gyro shape {gyro.shape} differs from accel shape {accel.shape}")
-        sg = moving_variance_norm(gyro, w)
+        sg = moving_variance_norm(gyro, w) if stat_gyro is None else np.asarray(stat_gyro, dtype=np.float64)
 
     need_init = threshold is None or (use_gyro and gyro_threshold is None)
     span = None
