@@ -42,14 +42,8 @@ def _check_clock_case(tmp_path, seed):
     return s, ds
 
 
-@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("seed", range(20))   # the acceptance: >= 20 seeds, in CI (about 25 s)
 def test_clock_rate_and_gyro_scale_from_arrival_stamps(tmp_path, seed):
-    _check_clock_case(tmp_path, seed)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", range(3, 23))
-def test_clock_rate_and_gyro_scale_from_arrival_stamps_20_seeds(tmp_path, seed):
     _check_clock_case(tmp_path, seed)
 
 
