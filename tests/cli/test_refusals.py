@@ -386,3 +386,32 @@ def test_non_finite_navigation_exits_3_and_keeps_the_earlier_output(tmp_path, ca
     code, err = run(capsys, "navigate", rec, "--calibration", cal, "--out", out, "--output-interval", "1")
     assert code == 3 and "non-finite values in" in err and "--nav-rate" in err
     assert out.read_bytes() == b"earlier good output" and leftovers(tmp_path) == []
+
+
+def test_gyro_units_checked_against_the_table_angle(tmp_path):
+    """A turntable session in physical units (the simulator's counts mapped through its true model): the gyro's
+    integrated rotation over the rotation segments matches the recorded table angle (ratio within 1 %); the same
+    rates declared in degrees are refused by that ratio (pi/180), the mistake named."""
+    import math
+
+    from calib.core.triad import liu2021_model
+    from calib.signal import plausibility
+
+    sess = simulator.simulate_calibration_session(
+        {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 10.0, "revolutions": 1}, 3, tmp_path / "c.nc")
+    ds = recording.load(sess)
+    fs = float(ds.attrs["sample_rate_hz"])
+    gyr = liu2021_model("gyro").inverse(np.asarray(ds["gyro"].values, float) * fs) * math.pi / 180.0 / 3600.0
+    acc = liu2021_model("accel").inverse(np.asarray(ds["accel"].values, float) * fs) * 9.80665
+    phys = ds.copy()
+    phys["gyro"] = (ds["gyro"].dims, gyr, {"sample_kind": "rate", "units": "rad s-1"})
+    phys["accel"] = (ds["accel"].dims, acc, {"sample_kind": "rate", "units": "m s-2"})
+    good = recording.write(phys, tmp_path / "phys.nc")
+    res = plausibility.check_recording(good)
+    assert abs(res.table_angle_ratio - 1.0) < 0.01
+    bad = phys.copy()
+    bad["gyro"].attrs["units"] = "deg s-1"
+    path = recording.write(bad, tmp_path / "deg.nc")
+    res = plausibility.check_recording(path, force=True)
+    assert res.table_angle_ratio == pytest.approx(math.pi / 180.0, rel=0.01)
+    assert any("table turned" in w and "radians declared as degrees" in w for w in res.warnings)

@@ -64,6 +64,7 @@ class Plausibility:
     accel_expected: float | None = None
     accel_units: str = ""
     gyro_static_deg_h: float | None = None
+    table_angle_ratio: float | None = None      # gyro rotation / table angle over the rotation segments
     warnings: list = field(default_factory=list)
 
     def describe(self) -> str:
@@ -171,7 +172,66 @@ def check_recording(path, header=None, *, force: bool = False) -> Plausibility:
             _gyro_physical(refuse, h, g_static, noise)
     for sensor, ab in absurd.items():
         ab.judge(refuse, sensor)
+    if fg is not None:
+        _table_rotation_check(refuse, res, path, h, fg)
     return res
+
+
+#: a gyro's integrated rotation over a rotation segment within this factor of the table's recorded angle passes
+TABLE_ANGLE_RATIO = (0.8, 1.25)
+
+
+def _table_rotation_check(refuse, res, path, h, fg):
+    """Where the recording has a turntable record (rotation segments with ``table_angle``): the gyro's integrated
+    rotation over each rotation segment (magnitude of the integral of the rate vector, in the declared units and
+    clock) against the angle the table turned. A common ratio near 180/pi, pi/180, 3600, 2 or 1/2 names the
+    likely mistake (exit 2 before any fit)."""
+    import xarray as xr
+
+    try:
+        with xr.open_dataset(path, engine="netcdf4") as ds:
+            if not {"table_angle", "segment_index", "segment_kind"} <= set(ds.variables):
+                return
+            kinds = [str(k) for k in ds["segment_kind"].values]
+            if "rotation" not in kinds:
+                return
+            seg = np.asarray(ds["segment_index"].values)
+            ang = np.asarray(ds["table_angle"].values, dtype=float)
+            gyr = np.asarray(ds["gyro"].values, dtype=float)
+    except (OSError, KeyError, ValueError):
+        return
+    dt = 1.0 / h.sample_rate_hz
+    ratios = []
+    for s, kind in enumerate(kinds):
+        if kind != "rotation":
+            continue
+        idx = np.flatnonzero(seg == s)
+        if idx.size < 10:
+            continue
+        a = np.unwrap(np.radians(ang[idx]))
+        turned = abs(a[-1] - a[0])
+        if turned < math.radians(30.0):
+            continue
+        turned += turned / (idx.size - 1)                       # the last sample's own interval
+        rot = float(np.linalg.norm(np.sum(gyr[idx] * fg, axis=0) * dt))   # rad
+        ratios.append(rot / turned)
+    if not ratios:
+        return
+    r = float(np.median(ratios))
+    res.table_angle_ratio = r
+    if TABLE_ANGLE_RATIO[0] <= r <= TABLE_ANGLE_RATIO[1]:
+        return
+    likely = _likely(r, [(math.degrees(1.0), "data in degrees declared as radians (gyro.units)"),
+                         (math.radians(1.0), "data in radians declared as degrees (gyro.units)"),
+                         (3600.0, "data in deg/s declared as 'deg h-1' (gyro.units)"),
+                         (1.0 / 3600.0, "data in deg/h declared as 'deg s-1' (gyro.units)"),
+                         (2.0, "a declared sample_rate_hz half the true one"),
+                         (0.5, "a declared sample_rate_hz twice the true one")])
+    refuse("gyro", f"the gyro's integrated rotation is {r:.4g} times the angle the table turned (median over "
+           f"{len(ratios)} rotation segments, declared {h.gyro_units!r} at {h.sample_rate_hz:g} Hz)"
+           + (f": likely {likely}" if likely else ""),
+           "declare the gyro's real units and the sample rate in the import settings (gyro.units, "
+           "sample_rate_hz), or pass --force")
 
 
 class _Absurd:
