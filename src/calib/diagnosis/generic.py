@@ -413,14 +413,7 @@ def form_alternatives(prob: Problem, final: Fit) -> list[dict]:
         rest = [k for k in final.terms if k not in keys]
         f0 = fit(prob, rest, delta=final.delta if "time_offset" in rest else None,
                  taus={k: v for k, v in final.taus.items() if k in rest})
-        S = _rival_columns(prob, final, builder)
-        A = np.hstack([prob.whiten(f0.X), prob.whiten(S)])
-        yw = prob.wcache("y", lambda: prob.y)
-        coef, *_ = np.linalg.lstsq(A, yw, rcond=None)
-        r = yw - A @ coef
-        chi2 = float(r @ r)
-        extra = int(np.linalg.matrix_rank(A)) - int(np.linalg.matrix_rank(A[:, :f0.X.shape[1]]))
-        bic_alt = chi2 + (f0.k + extra) * math.log(n)
+        chi2, bic_alt = _bic_with(prob, f0, _rival_columns(prob, final, builder))
         bic_fin = final.bic(n)
         if bic_alt <= bic_fin + dbic:
             out.append({"replaces": sorted(hit), "alternative": name, "chi2": chi2, "chi2_found": final.chi2,
