@@ -123,15 +123,22 @@ class Protocol:
         return "protocol " + ", ".join(parts) if parts else "no protocol timing known"
 
 
-def protocol_of(ds, settings: dict, src: str = "input") -> Protocol:
-    """The protocol timing from the settings' ``protocol:`` section, else the recording's ``protocol_<key>``
-    attributes. Non-positive or non-numeric values are an error (:class:`FieldCalError`)."""
+def protocol_section(settings: dict, src: str = "input") -> dict:
+    """The settings' ``protocol:`` section, checked: a mapping of :data:`PROTOCOL_KEYS` (:class:`FieldCalError`
+    naming the key otherwise)."""
     sec = settings.get("protocol") or {}
     if not isinstance(sec, dict):
         raise FieldCalError(f"{src}: settings 'protocol' must be a mapping of {', '.join(PROTOCOL_KEYS)}")
     for key in sec:
         if key not in PROTOCOL_KEYS:
             raise FieldCalError(f"{src}: settings 'protocol.{key}' unknown -- fix: one of {', '.join(PROTOCOL_KEYS)}")
+    return sec
+
+
+def protocol_of(ds, settings: dict, src: str = "input") -> Protocol:
+    """The protocol timing from the settings' ``protocol:`` section, else the recording's ``protocol_<key>``
+    attributes. Non-positive or non-numeric values are an error (:class:`FieldCalError`)."""
+    sec = protocol_section(settings, src)
     out = Protocol()
     for key in PROTOCOL_KEYS:
         if key in sec:

@@ -31,7 +31,6 @@ from calib.fieldcal.results import (
     GYRO_KEYS,
     IMU_TK_DEFAULTS,
     MIN_INTERVALS,
-    PROTOCOL_KEYS,
     RECOMMENDED_INTERVALS,
     SETTINGS_KEYS,
     log,
@@ -69,12 +68,7 @@ def _check_settings(settings, src):
         if key not in allowed:
             raise FieldCalError(f"{src}: settings 'detection.{key}' unknown for rule {rule!r} -- fix: one of "
                                 f"{', '.join(sorted(allowed))}")
-    proto = settings.get("protocol") or {}
-    if not isinstance(proto, dict):
-        raise FieldCalError(f"{src}: settings 'protocol' must be a mapping")
-    for key in proto:
-        if key not in PROTOCOL_KEYS:
-            raise FieldCalError(f"{src}: settings 'protocol.{key}' unknown -- fix: one of {', '.join(PROTOCOL_KEYS)}")
+    default_detection.protocol_section(settings, src)
     gy = settings.get("gyro") or {}
     for key in gy:
         if key not in GYRO_KEYS:
