@@ -59,33 +59,39 @@ def _time_basis(t, t0, span):
     return leg, per
 
 
+def _context(prob: Problem):
+    """The sample context of the problem's windows (:func:`calib.diagnosis.library.sample_context`), built once per
+    problem."""
+    cache = prob.__dict__.setdefault("_generic_ctx", {})
+    if "ctx" not in cache:
+        cache["ctx"] = sample_context(prob.geom)
+    return cache["ctx"]
+
+
+def _axis_column(prob: Problem, ctx, M: dict, sensor: str, i: int, term) -> np.ndarray:
+    """Observation column (n_obs,) of a per-sample input-referred term ``term`` on axis ``i`` of ``sensor``, at the
+    base K E ``M`` (reduced like the library's terms)."""
+    d = np.zeros((ctx.t.size, 3))
+    d[:, i] = term
+    return _reduce_term(prob.geom, ctx, d, sensor, np.diag(np.asarray(M[sensor], float)).copy(),
+                        TO_MODEL[prob.geom.units_in[sensor]])
+
+
 def generic_families(prob: Problem, final: Fit) -> list[dict]:
     """The generic families of the vector model (module docstring), each ``{"family", "sensor", "axis",
     "description", "S"}`` with ``S`` (n_obs, k) in the observations' units at the final fit's K E."""
     if prob.kind != "vector":
         return []
-    geom = prob.geom
-    cache = prob.__dict__.setdefault("_generic_ctx", {})
-    if "ctx" not in cache:
-        cache["ctx"] = sample_context(geom)
-    ctx = cache["ctx"]
+    ctx = _context(prob)
     M, _ = base_estimates(final.theta)
     t = ctx.t
     t0, span = float(t.min()), float(np.ptp(t))
     leg, per = _time_basis(t, t0, span)
     out = []
     for s in SENSORS:
-        KE = np.asarray(M[s], float)
-        Kd = np.diag(KE).copy()
-        conv = TO_MODEL[geom.units_in[s]]
         x = ctx.f if s == "accel" else ctx.w
         xs = x / max(float(np.max(np.abs(x))), 1e-300)  # unit-free input (g or rate over its largest value)
         for i in range(3):
-            def col(term):
-                d = np.zeros((t.size, 3))
-                d[:, i] = term
-                return _reduce_term(geom, ctx, d, s, Kd, conv)
-
             fams = {"time": (leg + per, "bias moving in time (Legendre degree 1-3 and sinusoids of period "
                                         "span/1..6)"),
                     "scale in time": ([xs[:, i] * leg[0], xs[:, i] * leg[1]],
@@ -103,7 +109,7 @@ def generic_families(prob: Problem, final: Fit) -> list[dict]:
                 fams["rate"] = ([w**2, w**3, np.abs(w), w * np.abs(w)],
                                 "output depending on the rate beyond the linear model (w^2, w^3, |w|, w|w|)")
             for fam, (terms, desc) in fams.items():
-                S = np.column_stack([col(term) for term in terms])
+                S = np.column_stack([_axis_column(prob, ctx, M, s, i, term) for term in terms])
                 out.append({"family": fam, "sensor": s, "axis": AXES[i], "description": desc, "S": S})
     return out
 
@@ -146,9 +152,7 @@ def _vector_step_tests(prob: Problem, final: Fit, L, Q, r_perp) -> list[dict]:
     if prob.kind != "vector":
         return []
     geom, o = prob.geom, prob.geom.obs
-    ctx = prob.__dict__.setdefault("_generic_ctx", {})
-    if "ctx" not in ctx:
-        ctx["ctx"] = sample_context(geom)
+    ctx = _context(prob)
     M, _ = base_estimates(final.theta)
     t_win = np.array([geom.time_s[w.i0] for w in geom.windows])
     order = np.argsort(t_win, kind="stable")
@@ -157,22 +161,17 @@ def _vector_step_tests(prob: Problem, final: Fit, L, Q, r_perp) -> list[dict]:
     obs_rank = rank_of[np.asarray(o["window"])]
     out = []
     for s in SENSORS:
-        KE = np.asarray(M[s], float)
-        Kd = np.diag(KE).copy()
-        conv = TO_MODEL[geom.units_in[s]]
         for i in range(3):
-            d = np.zeros((ctx["ctx"].t.size, 3))
-            d[:, i] = 1.0
-            B = _reduce_term(geom, ctx["ctx"], d, s, Kd, conv)
+            B = _axis_column(prob, ctx, M, s, i, 1.0)
             best, n_b = None, 0
             for j in range(2, len(order) - 1):
                 col = np.where(obs_rank >= j, B, 0.0)
                 if not np.any(col):
                     continue
-                g = prob.whiten(col, L)
-                g = g - Q @ (Q.T @ g)
+                gw = prob.whiten(col, L)
+                g = gw - Q @ (Q.T @ gw)
                 nn = float(g @ g)
-                if nn <= 1e-12 * max(float(prob.whiten(col, L) @ prob.whiten(col, L)), 1e-300):
+                if nn <= 1e-12 * max(float(gw @ gw), 1e-300):
                     continue
                 n_b += 1
                 c2 = float((g @ r_perp) ** 2 / nn)
@@ -213,9 +212,7 @@ def _stop_tests(prob: Problem, r_perp, final: Fit):
         for k in ids:
             if geom.windows[o["window"][k]].kind == "static" and o["row"][k] == 0:
                 idx[(o["window"][k], a)] = k
-    ctx = prob.__dict__.setdefault("_generic_ctx", {}).get("ctx")
-    if ctx is None:
-        return None
+    ctx = _context(prob)
     perp = par = 0.0
     n_perp = n_par = 0
     for j in stat:
@@ -329,14 +326,8 @@ RIVALS = [r for s in ("accel", "gyro") for r in (
 
 def _rival_columns(prob: Problem, final: Fit, builder) -> np.ndarray | None:
     kind, sensor = builder
-    ctx = prob.__dict__.setdefault("_generic_ctx", {}).get("ctx")
-    if ctx is None:
-        ctx = prob.__dict__["_generic_ctx"]["ctx"] = sample_context(prob.geom)
-    geom = prob.geom
+    ctx = _context(prob)
     M, _ = base_estimates(final.theta)
-    KE = np.asarray(M[sensor], float)
-    Kd = np.diag(KE).copy()
-    conv = TO_MODEL[geom.units_in[sensor]]
     x = ctx.f if sensor == "accel" else ctx.w
     xs = x / max(float(np.max(np.abs(x))), 1e-300)
     t = ctx.t
@@ -350,10 +341,7 @@ def _rival_columns(prob: Problem, final: Fit, builder) -> np.ndarray | None:
         else:  # time
             leg, per = _time_basis(t, float(t.min()), float(np.ptp(t)))
             terms = leg[:2] + per[:4]
-        for term in terms:
-            d = np.zeros((t.size, 3))
-            d[:, i] = term
-            cols.append(_reduce_term(geom, ctx, d, sensor, Kd, conv))
+        cols += [_axis_column(prob, ctx, M, sensor, i, term) for term in terms]
     return np.column_stack(cols)
 
 
