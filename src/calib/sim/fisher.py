@@ -1,0 +1,215 @@
+"""Noise-limited bounds of the library's effect parameters from the Fisher information of the generative model.
+
+How precisely *could* any unbiased estimator determine an effect's parameters from one simulated session? The
+answer depends only on the generative model: the noise-free output as a function of the parameters, and the
+noise the simulator adds. It is computed here without the diagnosis (:mod:`calib.diagnosis`): no window means, no
+signatures, no noise estimate of its own. The diagnosis's standard errors and its spread over noise seeds are then
+compared against it (the concealed-effect proof, :mod:`calib.studies.diagnosis_proof`): an estimator that claims
+a standard error below the bound is overconfident; one far above it leaves information unused.
+
+Model (per channel c of the six, accelerometer x, y, z then gyro x, y, z; sample k covers [k dt, (k + 1) dt)):
+
+    counts_k = mu_k(theta, eta) + K_c (sigma_w z_k + beta_k dt) + (r_k-1 - r_k)
+
+* ``mu``: the noise-free increments of the session (:meth:`calib.sim.simulator.CalibrationSimulator.clean_increments`)
+  with the effect made by :mod:`calib.sim.physical` (or, for ``latitude_error`` / ``gravity_error``, by the
+  simulator's world); ``theta``: the effect's parameters; ``eta``: the nuisance parameters of the base model
+  ``N = K E x + b`` (Liu 2021 eqs. 1-4: 3 scale factors, 6 misalignments, 3 biases per triad), whose
+  derivatives follow from the true inputs ``x`` recovered from ``mu``.
+* white noise ``sigma_w`` (the simulator's VRW / ARW per sample), a first-order Gauss-Markov bias ``beta`` (AR(1),
+  ``a = exp(-dt / tau)``, stationary standard deviation ``sigma_b``), and the pulse counter's carried remainder
+  ``r`` (uniform on [0, 1): the quantisation noise is the difference of two uniforms, spectrum
+  ``(1/12) |1 - e^{-i w}|^2``).
+
+The Gaussian Fisher information ``J = D^T Sigma^-1 D`` (D the derivatives of ``mu``) is evaluated in the frequency
+domain (Whittle's approximation: ``J = sum_k Re(D_k^H D_k) / (n S(w_k))`` over the DFT of each column, with the
+spectral density ``S`` of the noise per sample), exact as the session grows long compared with the bias
+correlation time. The quantisation noise is not Gaussian; its second-order description is used, which the
+bound then assumes. Bounds: ``sqrt(diag(J^-1))`` for the parameters the information determines; a parameter in
+the null space of ``J`` (the data cannot tell it apart from a combination of the others) is reported as
+``None`` ("not determined").
+"""
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+
+from calib.sim import effects as sim_effects
+from calib.sim import physical, simulator
+
+AXES = ("x", "y", "z")
+#: parameters that fix the form of an effect, not its size (held at their true values)
+SHAPE_PARAMETERS = {"accel_tau_s", "gyro_tau_s", "T_ref_degC"}
+#: effects the simulator makes by changing the world (derivatives by re-simulating the noise-free session)
+WORLD_EFFECTS = {"latitude_error", "gravity_error"}
+_REL_STEP = 1e-3
+
+
+def noise_spectrum(sim, n: int) -> np.ndarray:
+    """Spectral density of the noise per sample [count^2] of the six channels at the rfft frequencies of ``n``
+    samples, shape (6, n // 2 + 1)."""
+    dt = 1.0 / float(sim.sample_rate_hz)
+    nz = sim.noise
+    K = np.concatenate([sim.accel.K, sim.gyro.K])
+    sig_w = np.array([nz["accel_vrw_ug_rthz"] * 1e-6 * math.sqrt(dt)] * 3 + [nz["gyro_arw_deg_rth"] * 60.0 * math.sqrt(dt)] * 3)
+    sig_b = np.array([nz["accel_bias_instability_ug"] * 1e-6] * 3 + [nz["gyro_bias_instability_deg_h"]] * 3)
+    tau = np.array([nz["accel_bias_corr_time_s"]] * 3 + [nz["gyro_bias_corr_time_s"]] * 3)
+    w = 2.0 * math.pi * np.arange(n // 2 + 1) / n
+    S = np.empty((6, w.size))
+    for c in range(6):
+        white = (K[c] * sig_w[c]) ** 2
+        if nz["bias_model"] == "gauss_markov":
+            a = math.exp(-dt / tau[c])
+            gm = (K[c] * dt * sig_b[c]) ** 2 * (1.0 - a * a) / np.abs(1.0 - a * np.exp(-1j * w)) ** 2
+        else:   # random walk: increments of variance sig_b^2 dt / tau per sample
+            with np.errstate(divide="ignore"):
+                gm = (K[c] * dt * sig_b[c]) ** 2 * (dt / tau[c]) / np.abs(1.0 - np.exp(-1j * w)) ** 2
+        quant = (2.0 - 2.0 * np.cos(w)) / 12.0 if nz["quantize"] else 0.0
+        S[c] = white + gm + quant
+    return S
+
+
+def _names(eid: str, params: dict):
+    """(parameter name as reported, key, index) of every scalar size parameter of an effect."""
+    out = []
+    for key, v in params.items():
+        if key in SHAPE_PARAMETERS or key == "enabled":
+            continue
+        a = np.asarray(v, dtype=float)
+        if a.ndim == 0:
+            out.append((key, key, ()))
+        elif a.ndim == 1:
+            out += [(f"{key}[{AXES[i]}]", key, (i,)) for i in range(a.shape[0])]
+        else:
+            out += [(f"{key}[{AXES[i]},{AXES[j]}]", key, (i, j)) for i in range(a.shape[0]) for j in range(a.shape[1])]
+    return out
+
+
+def _with(params: dict, key: str, idx, value: float) -> dict:
+    p = copy.deepcopy(params)
+    a = np.array(p[key], dtype=float)
+    if a.ndim == 0:
+        p[key] = float(value)
+    else:
+        a[idx] = value
+        p[key] = a.tolist()
+    return p
+
+
+def _effect_columns(cfg: dict, sim, clean, eid: str, params: dict, temperature):
+    """Derivatives of the noise-free increments (n, 6) with respect to each size parameter of the effect."""
+    cols, names = [], []
+    for name, key, idx in _names(eid, params):
+        v0 = float(np.asarray(params[key], dtype=float)[idx])
+        h = _REL_STEP * max(abs(v0), 1e-3 if eid == "time_offset" else 1.0)
+        out = []
+        for v in (v0 + h, v0 - h):
+            p = _with(params, key, idx, v)
+            if eid in WORLD_EFFECTS:
+                c = copy.deepcopy(cfg)
+                c["effects"] = {eid: p}
+                out.append(simulator.build_calibration_simulator(c, 0).clean_increments())
+            else:
+                out.append(physical.inject(sim, clean, {eid: p}, temperature))
+        d = (out[0] - out[1]) / (2.0 * h)
+        if np.any(d != 0.0):          # an element the effect ignores (e.g. the diagonal of cross-coupling)
+            cols.append(d)
+            names.append(name)
+    return names, cols
+
+
+def _nuisance_columns(sim, clean):
+    """Derivatives of N dt = (K E x + b) dt with respect to K, the off-diagonal E and b of both triads."""
+    dt = 1.0 / float(sim.sample_rate_hz)
+    n = len(clean)
+    cols, names = [], []
+    for t, (model, sl) in enumerate(((sim.accel, slice(0, 3)), (sim.gyro, slice(3, 6)))):
+        x = model.inverse(clean[:, sl] / dt)
+        y = x @ model.E.T
+        tri = "accel" if t == 0 else "gyro"
+        for i in range(3):
+            c = sl.start + i
+            d = np.zeros((n, 6))
+            d[:, c] = y[:, i] * dt
+            cols.append(d); names.append(f"{tri}.K[{AXES[i]}]")
+            for j in range(3):
+                if j != i:
+                    d = np.zeros((n, 6))
+                    d[:, c] = model.K[i] * x[:, j] * dt
+                    cols.append(d); names.append(f"{tri}.E[{AXES[i]},{AXES[j]}]")
+            d = np.zeros((n, 6))
+            d[:, c] = dt
+            cols.append(d); names.append(f"{tri}.b[{AXES[i]}]")
+    return names, cols
+
+
+def information(cols, S) -> np.ndarray:
+    """Whittle Fisher information of columns ``cols`` (list of (n, 6)) under the per-channel spectra ``S``."""
+    n = cols[0].shape[0]
+    P = len(cols)
+    J = np.zeros((P, P))
+    wts = np.full(n // 2 + 1, 2.0)
+    wts[0] = 1.0
+    if n % 2 == 0:
+        wts[-1] = 1.0
+    for c in range(6):
+        use = [k for k in range(P) if np.any(cols[k][:, c] != 0.0)]
+        if not use:
+            continue
+        F = np.fft.rfft(np.stack([cols[k][:, c] for k in use], axis=1), axis=0)   # (nf, p_c)
+        Fw = F * (wts / (n * S[c]))[:, None]
+        J[np.ix_(use, use)] += np.real(F.conj().T @ Fw)
+    return J
+
+
+def information_for(cfg: dict, effect_id: str, params: dict | None = None, sim=None, clean=None, temperature=None):
+    """Fisher information of the size parameters of ``effect_id`` in the session ``cfg`` (a calibration-session
+    configuration; the effect is removed from it and made by the physical path) together with the base model's 24
+    nuisance parameters. Returns ``(J, effect parameter names)``: the effect's parameters come first in ``J``."""
+    cfg = copy.deepcopy(cfg)
+    cfg["effects"] = {k: v for k, v in (cfg.get("effects") or {}).items() if k != effect_id}
+    if sim is None:
+        sim = simulator.build_calibration_simulator(cfg, 0)
+        clean = sim.clean_increments()
+    n = len(clean)
+    if temperature is None:
+        dt = 1.0 / float(sim.sample_rate_hz)
+        temperature = simulator.temperature_profile((np.arange(n) + 0.5) * dt, sim.temperature)
+    full = sim_effects.resolve({effect_id: params or {}})[effect_id]
+    full = {k: v for k, v in full.items() if k != "enabled"}
+    enames, ecols = _effect_columns(cfg, sim, clean, effect_id, full, temperature)
+    _, ncols = _nuisance_columns(sim, clean)
+    return information(ecols + ncols, noise_spectrum(sim, n)), enames
+
+
+def bounds_from(J: np.ndarray, enames: list, free=None, null_tol: float = 1e-9) -> dict:
+    """Bounds (1 sigma) of the effect parameters ``enames`` (the first rows of ``J``) with the nuisances free.
+    ``free``: the effect parameters estimated (default all); the others are held at their true values (the bound of
+    an estimator that fits only ``free``). ``None`` for a parameter the information does not determine."""
+    keep = [k for k, nm in enumerate(enames) if free is None or nm in free]
+    idx = keep + list(range(len(enames), J.shape[0]))
+    Jk = J[np.ix_(idx, idx)]
+    s = np.sqrt(np.clip(np.diag(Jk), 1e-300, None))
+    Js = Jk / np.outer(s, s)
+    lam, V = np.linalg.eigh(Js)
+    good = lam >= null_tol * lam.max()
+    null = V[:, ~good]
+    inv = (V[:, good] / lam[good]) @ V[:, good].T
+    out = {}
+    for r, k in enumerate(keep):
+        if null.size and np.linalg.norm(null[r]) > 1e-6:
+            out[enames[k]] = None
+        else:
+            out[enames[k]] = float(math.sqrt(inv[r, r]) / s[r])
+    return out
+
+
+def bounds(cfg: dict, effect_id: str, params: dict | None = None, sim=None, clean=None, temperature=None,
+           free=None) -> dict:
+    """Fisher (Cramer-Rao) bounds, 1 sigma, of the size parameters of ``effect_id`` in the session ``cfg``, with the
+    base model's 24 parameters as nuisances (:func:`information_for`, :func:`bounds_from`). Returns
+    ``{name: bound or None}`` (None: not determined by this session), in the registry's units."""
+    J, enames = information_for(cfg, effect_id, params, sim, clean, temperature)
+    return bounds_from(J, enames, free)
