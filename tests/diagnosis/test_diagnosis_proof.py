@@ -44,7 +44,7 @@ def test_score_closed_cases():
     assert s["correct"] and s["named_exactly"] and not s["false_discoveries"]
     assert [c["covered"] for c in s["coverage"]] == [True, False]
     other = dict(found, effect="accel_scale_asymmetry", key="accel_scale_asymmetry/accel",
-                 aliases=[{"effect": "accel_cubic_nonlinearity", "key": "x"}])
+                 aliases=[{"effect": "accel_cubic_nonlinearity", "key": "accel_cubic_nonlinearity/accel"}])
     s2 = score({"found": [other]}, truth)
     assert s2["correct"] and not s2["named_exactly"]
     assert score({"found": []}, {"effects": {}})["correct"]

@@ -10,4 +10,5 @@ with runlog.to_file(snakemake.log[0]):
     diagnosis_study.proof_stage(p.out, pr["n_seeds"], p.seed, settings, pr.get("sessions") or None,
                                 pr["power_seeds"], workers=snakemake.threads, base=p.session, site=p.site,
                                 prov=provenance(snakemake.rule, dict(p.items()), seed=p.seed),
-                                metrics_path=snakemake.output.metrics, enforce=pr.get("enforce", True))
+                                metrics_path=snakemake.output.metrics, enforce=pr.get("enforce", True),
+                                injection=pr.get("injection", "physical"))

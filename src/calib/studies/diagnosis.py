@@ -193,7 +193,7 @@ def power_figure(power: dict, path):
 
 def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=None, power_seeds: int = 0,
                 workers: int = 2, base=None, site=None, prov=None, metrics_path=None, log=print,
-                enforce: bool = True) -> dict:
+                enforce: bool = True, injection: str = "physical") -> dict:
     """Run the concealed-effect proof and write its products into ``out_dir`` (see the module docstring).
 
     ``base``: the study's ``calibration_session`` config (path, noise, rate) and ``site``: its site; every proof
@@ -206,13 +206,14 @@ def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=
     out_dir = Path(out_dir)
     n_single = sum(proof.PROOF_SESSIONS[nm][0] == "single" for nm in names)
     prog = Progress(len(names) + (5 * n_single if power_seeds else 0), label="proof sessions", every_s=0.0)
-    log(f"proof: {len(names)} sessions x {n_seeds} seeds (first seed {first_seed}), {workers} worker(s)"
+    log(f"proof: {len(names)} sessions x {n_seeds} seeds (first seed {first_seed}), {workers} worker(s), "
+        f"library effects made by the {injection} path"
         + (f"; detection power with {power_seeds} seeds per magnitude" if power_seeds else ""))
     if base is not None:
         base = {**base, "site": dict(site or base.get("site") or proof.SESSION_BASE["site"])}
     out = proof.run_proof(out_dir, n_seeds=n_seeds, effects=names, seed=first_seed, workers=workers, settings=st,
                        power_scales="auto" if power_seeds else None, power_seeds=power_seeds, base=base,
-                       progress=lambda i, n, nm: prog(extra=nm))
+                       progress=lambda i, n, nm: prog(extra=nm), injection=injection)
     write_netcdf(proof_dataset(out), out_dir / "proof.nc", prov)
     if out.get("power"):
         write_text(out_dir / "power.csv", power_csv(out["power"]))

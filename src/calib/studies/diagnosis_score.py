@@ -29,6 +29,35 @@ def truth_value(eff_params: dict, pname: str):
     return float(v[ii]) if ii else float(v)
 
 
+#: effects acting on both triads: each half is a key of its own (``effect/accel``, ``effect/gyro``)
+BOTH_TRIADS = ("bias_drift", "temperature_sensitivity")
+SHAPE_KEYS = ("_tau_s", "T_ref_degC")
+
+
+def injected_keys(eff_params: dict) -> set:
+    """The library keys the truth holds: ``effect/sensor`` for the sensor effects (each triad of the effects of
+    both triads only when one of its size parameters is non-zero), the effect id for the site and clock."""
+    out = set()
+    for eid, p in eff_params.items():
+        if eid.startswith("accel_"):
+            out.add(f"{eid}/accel")
+        elif eid.startswith("gyro_"):
+            out.add(f"{eid}/gyro")
+        elif eid in BOTH_TRIADS:
+            for sensor in ("accel", "gyro"):
+                if any(np.any(np.asarray(v, float) != 0.0) for k, v in p.items()
+                       if k.startswith(sensor + "_") and not k.endswith(SHAPE_KEYS)):
+                    out.add(f"{eid}/{sensor}")
+        else:
+            out.add(eid)
+    return out
+
+
+def alias_keys(entry):
+    """Library keys of a found term and of its reported aliases."""
+    return {entry["key"]} | {a["key"] for a in entry.get("aliases", []) if "key" in a}
+
+
 def alias_group(entry):
     """Effect ids of a found term and of its reported aliases."""
     return {entry["effect"]} | {a["effect"] for a in entry.get("aliases", [])}
@@ -79,10 +108,15 @@ def score(report: dict, truth_sidecar, kind: str | None = None) -> dict:
         res["listed_untestable"] = bool(injected & untest)
         res["named_exactly"] = False
         return res
-    ok = [f for f in found if alias_group(f) & injected]
-    res["correct"] = bool(ok)
-    exact = [f for f in found if f["effect"] in injected]
-    res["named_exactly"] = bool(exact)
+    # exact per sensor: every injected key named (alone or in its reported alias group), and a finding on a triad
+    # the truth leaves untouched is a false discovery
+    keys = injected_keys(eff)
+    res["injected_keys"] = sorted(keys)
+    res["false_discoveries"] = [f["key"] for f in found if not (alias_keys(f) & keys)]
+    named = set().union(*[alias_keys(f) for f in found]) if found else set()
+    res["correct"] = keys <= named
+    exact = [f for f in found if f["key"] in keys]
+    res["named_exactly"] = {f["key"] for f in exact} == keys
     for f in exact:
         for p in f["parameters"]:
             tv = truth_value(eff[f["effect"]], p["name"])
