@@ -45,6 +45,8 @@ def all_targets():
             t.append(f"{R}/proof/proof.json")
         if DIAG.get("real", False):
             t.append(f"{R}/diagnosis/real/real.json")
+        if DIAG.get("real_proof", {}).get("enabled", False):
+            t.append(f"{R}/diagnosis/real_proof/real_proof.json")
     return t
 
 

@@ -77,3 +77,30 @@ rule diagnosis_real:
         "../envs/calib.yaml"
     script:
         "../scripts/diagnosis_real.py"
+
+
+rule diagnosis_real_proof:
+    """Real recordings as proof bases: detection limits per recording and effects injected at twice them."""
+    input:
+        settings=sorted(glob.glob("config/import/*.yaml")),
+    output:
+        proof=f"{R}/diagnosis/real_proof/real_proof.json",
+        md=report(f"{R}/diagnosis/real_proof/real_proof.md", category="6 Diagnosis", caption="../report/real_proof.rst"),
+        limits=report(f"{R}/diagnosis/real_proof/limits.csv", category="6 Diagnosis", caption="../report/real_proof.rst"),
+        fig=report(f"{R}/diagnosis/real_proof/limits.png", category="6 Diagnosis", caption="../report/real_proof.rst"),
+        metrics=f"{R}/diagnosis/real_proof/real_proof.metrics.json",
+    params:
+        cfg=lambda w: DIAG.get("real_proof", {}),
+        settings=lambda w: DIAG.get("settings", {}),
+        seed=config["seeds"]["diagnosis"],
+        out=lambda w, output: os.path.dirname(output.proof),
+        config_dir=lambda w, input: os.path.dirname(input.settings[0]),
+    threads: 2
+    log:
+        f"{R}/logs/diagnosis_real_proof.log",
+    benchmark:
+        f"{R}/benchmarks/diagnosis_real_proof.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/diagnosis_real_proof.py"

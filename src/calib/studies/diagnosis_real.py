@@ -14,7 +14,7 @@ from calib.diagnosis import (DEFAULT_SETTINGS, TO_MODEL, Problem, diagnose_datas
 from calib.ingest import importers
 from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
 from calib.signal import detect
-from calib.sim import effects
+from calib.sim import effects, physical
 from calib.studies.diagnosis_score import truth_value
 
 def import_real(settings_path):
@@ -29,26 +29,28 @@ def import_real(settings_path):
 
 
 def inject_accel_term(ds, prob: Problem, eid: str, params: dict):
-    """Add an accelerometer term of :mod:`calib.sim.effects` to a recording's accel samples, in the sensor model
-    identified by the norm calibration ``prob`` (K_i = |row i of M|, sensor-axis input y = (N - b)/K):
-    N' = N + K conv d(y). Returns the modified dataset (rate samples; counts stay counts)."""
+    """Add an accelerometer term to a recording's accel samples, in the sensor model identified by the norm
+    calibration ``prob`` (K_i = |row i of M|, sensor-axis input y = (N - b)/K), through the physical transfer
+    function of :mod:`calib.sim.physical` (not the registry formulas the diagnosis fits):
+    N' = b + K conv h(y). ``eid``: a quadratic or cubic nonlinearity or a scale asymmetry (registry units).
+    Returns the modified dataset (rate samples; counts stay counts)."""
+    sizes = {"accel_quadratic_nonlinearity": "k2_ug_per_g2", "accel_cubic_nonlinearity": "k3_ug_per_g3",
+             "accel_scale_asymmetry": "asym_ppm"}
+    if eid not in sizes:
+        raise ValueError(f"inject: {eid!r} cannot be injected into a real recording; one of {sorted(sizes)}")
     M, b = ob.Form("tri9").KE_b(prob.base_theta)
     K = np.linalg.norm(M, axis=1)
     conv = TO_MODEL[prob.geom.units_in["accel"]]
     y, _ = rate_readings(ds, "accel")
-    yin = (y - b) / K / conv
-    n = yin.shape[0]
-    z = np.zeros((n, 3))
-    ctx = effects.SensorContext(np.arange(n) / float(ds.attrs["sample_rate_hz"]), yin, z, yin, z, z, z,
-                                np.full(n, 25.0), np.eye(3), np.eye(3))
-    p = effects.resolve({eid: params})[eid]
-    da, _ = effects.REGISTRY[eid].apply(ctx, p)
-    add = da * (K * conv)[None, :]
+    u = (y - b) / K / conv                                  # sensor-axis input [g]
+    v = np.asarray(effects.resolve({eid: params})[eid][sizes[eid]], dtype=float) * 1e-6
+    h = physical.transfer(u, *(v if eid == k else None for k in sizes))
+    add = (h - u) * (K * conv)[None, :]
     out = ds.copy()
-    v = out["accel"]
-    if v.attrs.get("sample_kind") == "increment":
+    var = out["accel"]
+    if var.attrs.get("sample_kind") == "increment":
         add = add / float(ds.attrs["sample_rate_hz"])
-    out["accel"] = (v.dims, np.asarray(v.values, float) + add, v.attrs)
+    out["accel"] = (var.dims, np.asarray(var.values, float) + add, var.attrs)
     return out
 
 
