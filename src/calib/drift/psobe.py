@@ -22,6 +22,7 @@ import numpy as np
 
 from calib.core import earth
 from calib.io import recording
+from calib.nav import reader
 from calib.nav import strapdown
 from calib.core.earth import DEG_PER_H
 from calib.drift.pso import accuracy
@@ -47,8 +48,11 @@ class Window:
 
 
 def load_window(path, window_h: float, nav_rate_hz: float, attitude_rad=(0.0, 0.0, 0.0), longitude_deg=0.0,
-                chunk=1_000_000, progress=None) -> Window:
+                chunk=None, progress=None) -> Window:
     """Pre-integrate the first ``window_h`` hours of a physical-unit stationary recording.
+
+    Read by :func:`calib.nav.reader.for_each_chunk` (slices of about ``chunk`` samples, whole file chunks; the
+    next slice read while this one is pre-integrated); ``progress(samples_done)`` after each slice.
 
     Raises a clear error for a window longer than the recording or a sample rate that is not a multiple of
     the navigation rate.
@@ -66,7 +70,9 @@ def load_window(path, window_h: float, nav_rate_hz: float, attitude_rad=(0.0, 0.
     n -= n % n_sub
     carry = None
     Dth, Dv = [], []
-    for i0, acc, gyr in recording.iter_raw_chunks(path, h, chunk=chunk, stop=n):
+
+    def preintegrate(i0, acc, gyr):  # in a worker thread while the next slice is read (no netCDF here)
+        nonlocal carry
         dth = recording.to_si(gyr, h.gyro_units, h.gyro_kind, h.dt, "gyro")
         dv = recording.to_si(acc, h.accel_units, h.accel_kind, h.dt, "accel")
         if carry is None:
@@ -74,8 +80,8 @@ def load_window(path, window_h: float, nav_rate_hz: float, attitude_rad=(0.0, 0.
         a, b = strapdown.preintegrate(dth, dv, n_sub, carry)
         Dth.append(a)
         Dv.append(b)
-        if progress:
-            progress(i0 + len(acc))
+
+    reader.for_each_chunk(path, preintegrate, h, chunk=chunk, stop=n, progress=progress or None)
     lat0 = math.radians(h.latitude_deg)
     lon0 = math.radians(longitude_deg)
     pitch, roll, yaw = attitude_rad

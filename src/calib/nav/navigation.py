@@ -38,6 +38,7 @@ import numpy as np
 import xarray as xr
 
 from calib.nav import alignment
+from calib.nav import reader
 from calib.core import earth
 from calib.io import recording
 from calib.nav import strapdown
@@ -338,7 +339,7 @@ def attitude_from_attrs(path, header: recording.Header):
 
 
 def resolve_init(path, header: recording.Header, init, calibration=None, align_window_s: float = 600.0,
-                 n_sub: int = 10, chunk: int = 1_000_000):
+                 n_sub: int = 10, chunk: int | None = None):
     """Initial navigation state and the truth attitude for a recording (see module docstring)."""
     lat = math.radians(header.latitude_deg)
     lon = math.radians(float(header.attrs.get("longitude_deg", 0.0)))
@@ -364,7 +365,7 @@ def resolve_init(path, header: recording.Header, init, calibration=None, align_w
         if n > header.n_samples or n < n_sub:
             raise ValueError(f"{path}: align_window_s = {align_window_s} s does not fit the recording")
         dth, dv = [], []
-        for _, acc, gyr in recording.iter_raw_chunks(path, header, chunk=chunk, stop=n):
+        for _, acc, gyr in reader.iter_raw_chunks(path, header, chunk=chunk, stop=n):
             a, b = raw_to_increments(header, acc, gyr, calibration)
             dth.append(a)
             dv.append(b)
@@ -384,7 +385,7 @@ def resolve_init(path, header: recording.Header, init, calibration=None, align_w
 # the recording-level entry point
 # ======================================================================================================
 def navigate_recording(path, calibration=None, init=None, nav_rate_hz: float = 10.0, output_interval_s: float = 1.0,
-                       chunk: int = 1_000_000, progress=None, gyro_bias_rad_s=None, accel_bias=None,
+                       chunk: int | None = None, progress=None, gyro_bias_rad_s=None, accel_bias=None,
                        vertical: str = "hold", align_window_s: float = 600.0, parallel: bool = True) -> xr.Dataset:
     """Pure-inertial navigation of a stationary recording, streamed; returns navigation errors.
 
@@ -393,6 +394,10 @@ def navigate_recording(path, calibration=None, init=None, nav_rate_hz: float = 1
     nav_rate_hz must divide the sample rate; output_interval_s must be a multiple of the navigation
     interval. gyro_bias_rad_s (S, 3) [rad/s] / accel_bias (S, 3) [m/s^2]: optional constant compensations;
     with S > 1 the result has a ``stream`` dimension. progress(samples_done, n_samples) is called per chunk.
+    chunk: samples per read (default about 2**20, rounded to whole chunks of the file); the samples are read
+    by :func:`calib.nav.reader.for_each_chunk`: the next slice is read while this one is navigated in a
+    worker thread (memory flat: two slices in memory at a time); a ``calibration`` object must not use
+    netCDF (it runs in that worker thread).
 
     Returns an ``xarray.Dataset`` on ``time`` [h] (the first record is the initial state at t = 0) with the
     navigated pitch, roll, yaw, vE, vN, vU, lat, lon, h and the errors pitch_err, roll_err, yaw_err,
@@ -416,11 +421,13 @@ def navigate_recording(path, calibration=None, init=None, nav_rate_hz: float = 1
     start, truth = resolve_init(path, h, init, calibration, align_window_s, n_sub, chunk)
     nav = StrapdownNavigator(start, h.dt, n_sub, out_every, gyro_bias_rad_s, accel_bias, vertical, parallel)
     outs = [np.broadcast_to(nav.initial_record(), (nav.n_streams, 1, strapdown.NOUT))]
-    for i0, acc, gyr in recording.iter_raw_chunks(path, h, chunk=chunk):
+
+    def navigate_slice(i0, acc, gyr):  # in a worker thread while the next slice is read (no netCDF here)
         dth, dv = raw_to_increments(h, acc, gyr, calibration)
         outs.append(nav.feed(dth, dv))
-        if progress is not None:
-            progress(i0 + len(acc), h.n_samples)
+
+    reader.for_each_chunk(path, navigate_slice, h, chunk=chunk,
+                          progress=None if progress is None else (lambda done: progress(done, h.n_samples)))
     out = np.concatenate(outs, axis=1)
     t = np.arange(out.shape[1]) * out_every * dt_nav
     attrs = {"source_file": str(path), "nav_rate_hz": 1.0 / dt_nav, "output_interval_s": out_every * dt_nav,

@@ -93,6 +93,8 @@ VERTICAL_MODES = {"hold": 0, "free": 1, "damped": 2}
 #: LLVM fast-math flags of the kernels: only 'contract' (fused multiply-add), no reassociation, so results
 #: are as accurate as plain IEEE arithmetic and deterministic for a given machine
 _FM = {"contract"}
+# The kernels called from Python are compiled with nogil=True: they run without the GIL, so the next slice of a
+# recording is read while they navigate this one (calib.nav.reader.for_each_chunk).
 
 
 # ======================================================================================================
@@ -124,7 +126,7 @@ def _pre_accum(p0, p1, p2, p3, p4, p5, a0, a1, a2, v0, v1, v2, b0, b1, b2, c0, c
             b0, b1, b2, c0, c1, c2)
 
 
-@njit(cache=True, fastmath=_FM)
+@njit(cache=True, fastmath=_FM, nogil=True)
 def _preint_kernel(dth, dv, n_sub, pc, Dth, Dv):  # pragma: no cover - compiled
     """Pre-integrate samples into completed intervals (written to Dth, Dv); returns their number.
 
@@ -328,7 +330,7 @@ def _record(out, j, q0, q1, q2, q3, vE, vN, vU, lat, lon, h):  # pragma: no cove
     out[j, 8] = h
 
 
-@njit(cache=True, fastmath=_FM)
+@njit(cache=True, fastmath=_FM, nogil=True)
 def _run_stream(Dth, Dv, T, x, gb0, gb1, gb2, ab0, ab1, ab2, out_every, phase, out,
                 vmode, k1, k2):  # pragma: no cover - compiled
     """Navigate one stream over all intervals; ``x`` (NX,) state updated in place; records to ``out``.
@@ -364,21 +366,21 @@ def _run_stream(Dth, Dv, T, x, gb0, gb1, gb2, ab0, ab1, ab2, out_every, phase, o
     x[11], x[12], x[13] = sL, cL, lref
 
 
-@njit(cache=True, fastmath=_FM, parallel=True)
+@njit(cache=True, fastmath=_FM, parallel=True, nogil=True)
 def _run_multi_parallel(Dth, Dv, T, X, GB, AB, out_every, phase, out, vmode, k1, k2):  # pragma: no cover
     for s in prange(X.shape[0]):
         _run_stream(Dth, Dv, T, X[s], GB[s, 0], GB[s, 1], GB[s, 2], AB[s, 0], AB[s, 1], AB[s, 2],
                     out_every, phase, out[s], vmode, k1, k2)
 
 
-@njit(cache=True, fastmath=_FM)
+@njit(cache=True, fastmath=_FM, nogil=True)
 def _run_multi_serial(Dth, Dv, T, X, GB, AB, out_every, phase, out, vmode, k1, k2):  # pragma: no cover
     for s in range(X.shape[0]):
         _run_stream(Dth, Dv, T, X[s], GB[s, 0], GB[s, 1], GB[s, 2], AB[s, 0], AB[s, 1], AB[s, 2],
                     out_every, phase, out[s], vmode, k1, k2)
 
 
-@njit(cache=True, fastmath=_FM)
+@njit(cache=True, fastmath=_FM, nogil=True)
 def _run_fused(dth, dv, n_sub, pc, T, x, out_every, phase, out, vmode, k1, k2):  # pragma: no cover
     """Single stream, high-rate samples in: pre-integration and navigation in one pass.
 

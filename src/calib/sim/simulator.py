@@ -628,6 +628,16 @@ def _attitude(c: dict, where: str) -> tuple[np.ndarray, dict]:
     return euler_to_dcm(math.radians(a["pitch"]), math.radians(a["roll"]), math.radians(a["yaw"])), a
 
 
+def _time_chunking(n: int, target: int) -> int:
+    """Samples per file chunk along ``time`` of a long stationary recording: about ``target``, splitting the
+    ``n`` samples into equal chunks (the last one short by fewer samples than there are chunks, so the file
+    carries almost no padding). Chunks of about 2**20 samples (24 MB of a float64 triad) are read by one large
+    request each: cold-cache reading of the 240 h session is about twice as fast as with 2**18."""
+    target = max(1, min(int(target), int(n)))
+    k = -(-int(n) // target)
+    return -(-int(n) // k)
+
+
 def simulate_static_session(cfg: dict, seed: int, out_path, truth_path=None, prov=None, progress=None,
                             chunk_samples: int = 1 << 20) -> Path:
     """A long stationary recording written chunk by chunk (memory flat in the duration).
@@ -645,7 +655,8 @@ def simulate_static_session(cfg: dict, seed: int, out_path, truth_path=None, pro
 
     Attitude ``attitude_deg: {pitch, roll, yaw}`` (ENU convention of :mod:`calib.core.rotations`; zero = body
     axes along E, N, U). ``progress(done_samples, total_samples)`` is called after each chunk.
-    ``chunk_samples`` changes only memory use and file chunking, never the samples.
+    ``chunk_samples`` changes only memory use and file chunking (chunks of about that many samples along
+    ``time``, see :func:`_time_chunking`), never the samples.
     """
     mode = (cfg or {}).get("mode", "physical")
     if mode not in ("physical", "counts"):
@@ -663,7 +674,7 @@ def simulate_static_session(cfg: dict, seed: int, out_path, truth_path=None, pro
     if n < 2:
         raise SimConfigError(f"{where}.duration_h: {dur_h} h at {fs} Hz gives fewer than 2 samples")
     cbn, att = _attitude(c, where)
-    chunk_samples = max(int(chunk_samples), 1)
+    chunk_samples = _time_chunking(n, chunk_samples)  # written by whole file chunks
     t_wall = _time.perf_counter()
     if prov is None:
         prov = provenance("simulate_static_session", cfg, seed)
@@ -716,7 +727,7 @@ def _static_physical(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cb
     with recording.LongRecordingWriter(out_path, n, fs, latitude_deg=lat, height_m=h, accel_units="m s-1",
                                        gyro_units="rad", accel_kind="increment", gyro_kind="increment",
                                        dtype="f8", source="synthetic", sensor="He 2019 simulated stationary INS",
-                                       extra_attrs=attrs, chunk_samples=min(chunk, 262144)) as w:
+                                       extra_attrs=attrs, chunk_samples=chunk) as w:
         for i0 in range(0, n, chunk):
             i1 = min(n, i0 + chunk)
             dth = dth0 + sig_g * normals_g.get(i0, i1)
@@ -758,7 +769,7 @@ def _static_counts(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cbn,
     with recording.LongRecordingWriter(out_path, n, fs, latitude_deg=lat, height_m=h, accel_units="count",
                                        gyro_units="count", accel_kind="increment", gyro_kind="increment",
                                        dtype="i4" if quant else "f8", source="synthetic", sensor=SENSOR_NAME,
-                                       extra_attrs=attrs, chunk_samples=min(chunk, 262144), temperature=True) as w:
+                                       extra_attrs=attrs, chunk_samples=chunk, temperature=True) as w:
         for i0 in range(0, n, chunk):
             ch = eng.next(min(chunk, n - i0))
             w.append(ch.accel, ch.gyro, ch.temperature)

@@ -1,0 +1,169 @@
+"""Streaming reader of ``calib-recording-1`` samples for long navigation runs: chunk-aligned, overlapped.
+
+:func:`iter_raw_chunks` yields the same ``(first_sample_index, accel, gyro)`` float64 blocks as
+:func:`calib.io.recording.iter_raw_chunks` (the same samples, bit for bit) but reads in slices of a whole
+number of the file's chunks along ``time``: every chunk is read once, by one large read, straight into the
+output array (the per-variable chunk cache is switched off: no second copy).
+
+:func:`for_each_chunk` runs a function on every slice in a worker thread while the calling thread reads the
+next slice, so reading from disk and navigating overlap (the navigation kernels are compiled without the
+GIL). All netCDF calls stay in the calling thread: the netCDF-C/HDF5 library is not thread-safe, and a
+reader thread would break any other netCDF use of the process during the run. The function must therefore
+not use netCDF itself (the navigation and pre-integration kernels do not).
+
+Memory stays flat: two slices are in memory at a time, the one being processed and the one being read (two
+arrays of ``slice x 3`` float64 each: 50 MB at the default slice).
+"""
+from __future__ import annotations
+
+import threading
+
+import netCDF4
+import numpy as np
+
+from calib.io import recording
+from calib.io.recording import RecordingError
+
+#: target number of samples per slice when the caller gives none (24 MB per float64 triad)
+DEFAULT_SLICE = 1 << 20
+
+
+def _unreadable(path, exc) -> RecordingError:
+    if isinstance(exc, RecordingError):
+        return exc
+    return RecordingError(path, "-", f"not a readable netCDF file ({type(exc).__name__}: {exc}); truncated or not "
+                          "netCDF", recording.UNREADABLE_FIX)
+
+
+def slice_bounds(n_time_chunk: int | None, start: int, stop: int, target: int) -> list[tuple[int, int]]:
+    """``[(i0, i1), ...]`` covering ``[start, stop)``: every boundary inside the range on a multiple of the
+    file's chunk length ``n_time_chunk`` (None: contiguous storage, any boundary), slices of about ``target``
+    samples (a whole number of chunks, at least one)."""
+    target = max(int(target), 1)
+    if n_time_chunk and n_time_chunk > 0:
+        step = max(1, int(round(target / n_time_chunk))) * n_time_chunk
+    else:
+        step = target
+    out = []
+    i0 = start
+    while i0 < stop:
+        i1 = min(stop, (i0 // step + 1) * step)  # next multiple of step: aligned from the second slice on
+        out.append((i0, i1))
+        i0 = i1
+    return out
+
+
+def _time_chunk(var) -> int | None:
+    ch = var.chunking()
+    return None if ch == "contiguous" or ch is None else int(ch[0])
+
+
+def _slices(path, header, chunk, start, stop):
+    """Header, open dataset, bounds and a read(i0, i1) function (all in the calling thread)."""
+    h = header or recording.read_header(path)
+    stop = h.n_samples if stop is None else min(int(stop), h.n_samples)
+    start = max(int(start), 0)
+    try:
+        nc = netCDF4.Dataset(path, "r")
+    except Exception as exc:  # noqa: BLE001 - whatever the netCDF library raises, the file is unreadable
+        raise _unreadable(path, exc) from exc
+    try:
+        nc.set_auto_mask(False)
+        nc.set_auto_scale(False)
+        va, vg = nc.variables["accel"], nc.variables["gyro"]
+        tc = _time_chunk(va)
+        if tc != _time_chunk(vg):
+            tc = None  # different layouts: no common alignment, plain slices
+        for v in (va, vg):
+            v.set_var_chunk_cache(size=0)  # aligned slices read every chunk once: no cache, no extra copy
+        bounds = slice_bounds(tc, start, stop, chunk or DEFAULT_SLICE)
+    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+        nc.close()
+        raise _unreadable(path, exc) from exc
+
+    def read(i0, i1):
+        try:
+            return np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
+        except Exception as exc:  # noqa: BLE001 - corrupted sample data fail inside the library
+            raise _unreadable(path, exc) from exc
+
+    return nc, bounds, read
+
+
+def iter_raw_chunks(path, header: recording.Header | None = None, chunk: int | None = None, start: int = 0,
+                    stop=None):
+    """Yield ``(first_sample_index, accel, gyro)`` raw float64 arrays (n, 3) of ``[start, stop)`` in order.
+
+    ``chunk``: target samples per slice (default :data:`DEFAULT_SLICE`), rounded to a whole number of the
+    file's chunks. A file the library cannot read raises :class:`calib.io.recording.RecordingError`.
+    """
+    nc, bounds, read = _slices(path, header, chunk, start, stop)
+    try:
+        for i0, i1 in bounds:
+            acc, gyr = read(i0, i1)
+            yield i0, acc, gyr
+    finally:
+        nc.close()
+
+
+def for_each_chunk(path, fn, header: recording.Header | None = None, chunk: int | None = None, start: int = 0,
+                   stop=None, progress=None, overlap: bool = True) -> None:
+    """Call ``fn(first_sample_index, accel, gyro)`` on every slice of ``[start, stop)`` in order (the slices of
+    :func:`iter_raw_chunks`), in a worker thread while this thread reads the next slice.
+
+    ``fn`` must not use netCDF (see the module docstring); an exception it raises is raised here (after the
+    slice being read). ``progress(samples_done_up_to)`` is called in this thread once ``fn`` has finished a
+    slice. ``overlap=False`` runs everything in this thread (same calls, same order).
+    """
+    nc, bounds, read = _slices(path, header, chunk, start, stop)
+    try:
+        if not overlap or len(bounds) < 2:
+            for i0, i1 in bounds:
+                fn(i0, *read(i0, i1))
+                if progress is not None:
+                    progress(i1)
+            return
+        _overlapped(bounds, read, fn, progress)
+    finally:
+        nc.close()
+
+
+class _Worker:
+    """One call of ``fn`` in a thread; ``wait()`` joins it and re-raises its exception."""
+
+    def __init__(self, fn, args):
+        self.exc = None
+        self.thread = threading.Thread(target=self._run, args=(fn, args), name="calib-nav-worker", daemon=True)
+        self.thread.start()
+
+    def _run(self, fn, args):
+        try:
+            fn(*args)
+        except BaseException as exc:  # noqa: BLE001 - handed to the calling thread
+            self.exc = exc
+
+    def wait(self):
+        self.thread.join()
+        if self.exc is not None:
+            exc, self.exc = self.exc, None
+            raise exc
+
+
+def _overlapped(bounds, read, fn, progress):
+    pending, done_to = None, None
+    try:
+        for i0, i1 in bounds:
+            acc, gyr = read(i0, i1)  # while the worker processes the previous slice
+            if pending is not None:
+                pending.wait()
+                if progress is not None:
+                    progress(done_to)
+            pending, done_to = _Worker(fn, (i0, acc, gyr)), i1
+            del acc, gyr
+        pending.wait()
+        pending = None
+        if progress is not None:
+            progress(done_to)
+    finally:
+        if pending is not None:  # interrupted or a read failed: let the running slice finish, then leave
+            pending.thread.join()
