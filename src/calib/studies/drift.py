@@ -17,6 +17,7 @@ from calib.core import earth
 from calib.figures import style as figures
 from calib.drift import pso
 from calib.io import recording
+from calib.nav import reader as nav_reader
 from calib.nav import strapdown
 from calib.core.earth import DEG_PER_H
 from calib.io.netcdf import write_netcdf
@@ -215,7 +216,7 @@ def _fig3(path, hist, unit):
 
 
 def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: dict, site: dict, nav: dict,
-                   dcfg: dict, prov=None, log=print, chunk=2_000_000):
+                   dcfg: dict, prov=None, log=print, chunk=None):
     """Navigate the whole recording (240 h) without and with compensation by the mean PSOBE estimate (and by
     the Kalman baseline), in one streamed pass with three streams; He 2019 Figure 4."""
     with xr.open_dataset(pso_nc, engine="netcdf4") as p:
@@ -232,17 +233,20 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
     out_every = max(1, int(round(nav["output_interval_s"] / dt_nav)))
     streams = np.array([np.zeros(3), mean_est, kal]) * DEG_PER_H
     names = ["uncompensated", "pso_mean", "kalman"]
-    state, carry, outs = None, None, []
+    st = {"state": None, "carry": None}
+    outs = []
     bar = Progress(h.n_samples, "240 h navigation")
-    for i0, acc, gyr in recording.iter_raw_chunks(recording_path, h, chunk=chunk):
+
+    def step(i0, acc, gyr):   # runs in the reader's worker thread while the next slice is read
         dth = recording.to_si(gyr, h.gyro_units, h.gyro_kind, h.dt, "gyro")
         dv = recording.to_si(acc, h.accel_units, h.accel_kind, h.dt, "accel")
-        if carry is None:
-            carry = strapdown.new_carry(dth[0], dv[0])
-        D1, D2 = strapdown.preintegrate(dth, dv, n_sub, carry)
-        o, state = strapdown.navigate_multi(D1, D2, dt_nav, state or init, streams, None, out_every)
+        if st["carry"] is None:
+            st["carry"] = strapdown.new_carry(dth[0], dv[0])
+        D1, D2 = strapdown.preintegrate(dth, dv, n_sub, st["carry"])
+        o, st["state"] = strapdown.navigate_multi(D1, D2, dt_nav, st["state"] or init, streams, None, out_every)
         outs.append(o)
-        bar(i0 + len(acc))
+
+    nav_reader.for_each_chunk(recording_path, step, header=h, chunk=chunk, progress=bar)
     out = np.concatenate(outs, axis=1)
     t_s = np.arange(1, out.shape[1] + 1) * out_every * dt_nav
     wrap = lambda a: (a + math.pi) % (2 * math.pi) - math.pi  # noqa: E731
