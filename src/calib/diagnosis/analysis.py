@@ -10,13 +10,14 @@ import numpy as np
 from scipy import stats
 
 from calib.diagnosis.adequacy import adequacy, measured_factors, unexplained_entries
+from calib.diagnosis.blas import solve_lower
 from calib.diagnosis.fitting import fit
 from calib.diagnosis.generic import form_alternatives, open_search
 from calib.diagnosis.geometry import ROWS, SENSORS
 from calib.diagnosis.identifiability import discrimination_noncentrality, library_geometry, separating_segments
 from calib.diagnosis.library import EXPERIMENTS, build_library
 from calib.diagnosis.locate import block_table, locate
-from calib.diagnosis.noise import covariance_blocks, profile_noise
+from calib.diagnosis.noise import covariance_blocks, profile_noise, shape_eig
 from calib.diagnosis.problem import Fit, Problem, base_estimates, lstsq
 from calib.diagnosis.selection import is_slow, renoise, stepwise, testable_keys
 
@@ -28,8 +29,8 @@ def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:
     the estimated noise alone undercovers. Over the grid of the restricted likelihood of
     the final design (Tc x level, :func:`calib.diagnosis.noise.profile_noise`), with weights w ~ exp(-dnll/2)
     (points with dnll <= 9.21, i.e. weight >= 1 %), the law of total variance gives
-    se^2 = E_w[se^2 | noise] + Var_w[estimate | noise]. None when the model is not the vector model or the
-    fit keeps no design."""
+    se^2 = E_w[se^2 | noise] + Var_w[estimate | noise] (the GLS fits of the grid points:
+    :func:`_gls_over_slow_grid`). None when the model is not the vector model or the fit keeps no design."""
     c = prob.cand(key)
     if (prob.kind != "vector" or prob.noise is None or f.X is None or key not in f.slices
             or c.sensor not in SENSORS):     # site and clock terms: conditional standard errors
@@ -43,25 +44,82 @@ def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:
         return None
     nmin = min(p[0] for p in pts)
     use = [p for p in pts if p[0] - nmin <= 9.21]
-    nz = prob.noise
-    saved = {k: copy.deepcopy(getattr(nz, k)[s]) for k in ("scale", "N", "Q", "slow")}
-    sl = f.slices[key]
-    w, th, var = [], [], []
-    try:
-        for nll, tc, rho, lam in use:
-            nz.set_level(s, range(3), lam, tc, rho)
-            _, L = covariance_blocks(prob.geom, nz, prob.parts, prob.cache)
-            theta, cov, _ = lstsq(prob.whiten(f.X, L), prob.whiten(prob.y, L))
-            w.append(math.exp(-0.5 * (nll - nmin)))
-            th.append(theta[sl])
-            var.append(np.clip(np.diag(cov)[sl], 0.0, None))
-    finally:
-        for k, v in saved.items():
-            getattr(nz, k)[s] = v
-    w = np.asarray(w) / np.sum(w)
-    th, var = np.asarray(th), np.asarray(var)
+    th, var = _gls_over_slow_grid(prob, f.X, s, [(tc, rho, lam) for _, tc, rho, lam in use], f.slices[key])
+    w = np.array([math.exp(-0.5 * (nll - nmin)) for nll, *_ in use])
+    w = w / np.sum(w)
     mean = w @ th
     return np.sqrt(w @ var + w @ (th - mean) ** 2)
+
+
+def _gls_over_slow_grid(prob: Problem, X, sensor: str, points, sl):
+    """GLS estimates ``theta[sl]`` and variances ``diag(cov)[sl]`` of the design ``X`` at every noise point
+    ``(tc, rho, lam)`` of ``sensor`` (its three axis blocks at covariance ``lam (C_fast + rho A_slow(tc))``, the
+    other sensor at the problem's noise), as :func:`calib.diagnosis.problem.lstsq` of the whitened problem gives
+    them.
+
+    Nothing is refactorised per point: the sensor's blocks are whitened by the cached eigen-decomposition of
+    their noise shape (:func:`calib.diagnosis.noise.shape_eig`: ``W = (lam (I + rho diag(lam_e)))^-1/2 V^T L0^-1``,
+    a row scaling per point of ``V^T L0^-1 X``, computed once per Tc), the other sensor's rows (fixed) are
+    reduced once to their triangular factor (``Xo = Qo Ro``: the stacked problem ``[W X_s; Ro]`` has the same
+    normal equations and the same solution; the columns of the other sensor alone are eliminated in that
+    factorisation), and the points of one Tc are solved together by a batched QR of
+    the column-normalised stacked design. A point whose factor is close to rank deficient (where the rank cut of
+    ``lstsq`` could act) is solved by ``lstsq`` itself."""
+    geom, nz = prob.geom, prob.noise
+    si = SENSORS.index(sensor)
+    y = np.asarray(prob.y, float)
+    _, L = covariance_blocks(geom, nz, prob.parts, prob.cache)    # the problem's noise for the other sensor
+    other = [(k, idx) for k, idx in geom.obs["blocks"].items() if k[0] != si]
+    mine = [(a, geom.obs["blocks"][(si, a)]) for a in range(3)]
+    Xo = np.vstack([solve_lower(L[k], X[idx]) for k, idx in other])
+    yo = np.concatenate([solve_lower(L[k], y[idx]) for k, idx in other])
+    # columns that touch the sensor's rows (P) and those of the other sensor alone (O): O is eliminated once, in
+    # the QR of the other sensor's rows ordered [O, P] (its R_PP rows carry all they say about P: theta_P and its
+    # covariance are those of the full problem); kept in the grid problem when that factor is near singular
+    P = np.flatnonzero(np.any(X[np.concatenate([idx for _, idx in mine])] != 0, axis=0))
+    O = np.setdiff1d(np.arange(X.shape[1]), P)
+    Qo, Ro = np.linalg.qr(Xo[:, np.concatenate([O, P])])
+    dO = np.abs(np.diag(Ro)[:O.size])
+    if (O.size and (Ro.shape[0] < Ro.shape[1] or not dO.min() > 1e-6 * np.linalg.norm(Xo[:, O], axis=0).max())) \
+            or not np.all(np.isin(np.arange(sl.start, sl.stop), P)):
+        P, O = np.arange(X.shape[1]), np.arange(0)
+        Qo, Ro = np.linalg.qr(Xo)
+    yo = (Qo.T @ yo)[O.size:]
+    Ro = Ro[O.size:, O.size:]
+    sl = np.searchsorted(P, np.arange(sl.start, sl.stop))
+    th = np.empty((len(points), sl.size))
+    var = np.empty_like(th)
+    for tc in dict.fromkeys(p[0] for p in points):
+        sel = [i for i, p in enumerate(points) if p[0] == tc]
+        rho = np.array([points[i][1] for i in sel])
+        lev = np.array([points[i][2] for i in sel])
+        Zx, Zy, scale = [], [], []
+        for a, idx in mine:
+            L0, lam_e, V = shape_eig(geom, nz, prob.parts, sensor, a, tc, prob.cache)
+            Zx.append(V.T @ solve_lower(L0, X[idx][:, P]))
+            Zy.append(V.T @ solve_lower(L0, y[idx]))
+            scale.append(1.0 / np.sqrt(lev[:, None] * (1.0 + rho[:, None] * lam_e[None, :])))
+        scale = np.concatenate(scale, axis=1)                                  # (points, rows of the sensor)
+        A = np.concatenate([scale[:, :, None] * np.vstack(Zx)[None],
+                            np.broadcast_to(Ro, (len(sel),) + Ro.shape)], axis=1)
+        b = np.concatenate([scale * np.concatenate(Zy)[None], np.broadcast_to(yo, (len(sel), yo.size))], axis=1)
+        nrm = np.linalg.norm(A, axis=1)
+        k = A.shape[2]
+        # R of [A / |A|, b]: its last column holds Q^T b (Householder applied to b; Q is never formed)
+        Rb = np.linalg.qr(np.concatenate([A / np.where(nrm > 0, nrm, 1.0)[:, None, :], b[:, :, None]], axis=2),
+                          mode="r")
+        R, z = Rb[:, :k, :k], Rb[:, :k, k]
+        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
+        ok = d.min(axis=1) > 1e-6 * d.max(axis=1)
+        Ri = np.linalg.inv(R[ok])
+        th_ok = np.einsum("gkj,gj->gk", Ri, z[ok]) / nrm[ok]
+        var_ok = np.sum(Ri**2, axis=2) / nrm[ok] ** 2
+        for j, i in enumerate(np.asarray(sel)[ok]):
+            th[i], var[i] = th_ok[j, sl], var_ok[j, sl]
+        for g in np.flatnonzero(~ok):
+            theta, cov, _ = lstsq(A[g], b[g])
+            th[sel[g]], var[sel[g]] = theta[sl], np.diag(cov)[sl]
+    return th, np.clip(var, 0.0, None)
 
 
 def param_entries(prob: Problem, f: Fit, key, marginal: bool | None = None):

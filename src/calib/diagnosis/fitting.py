@@ -48,30 +48,13 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_colu
     if missing:
         return _fit_drift_taus(prob, terms, taus, delta, missing, offset_column)
     d = float(delta or 0.0) if has_off else 0.0
-    if has_off:
-        X = prob.cand("time_offset").offset.patch_design(prob.X0, d)
-        Xw = prob.whiten(X)
-    else:
-        X = prob.X0
-        Xw = prob.wcache("X0", lambda: prob.X0)
     yw = prob.wcache("y", lambda: prob.y)
-    cols, wcols, names, slices, active = [X], [Xw], list(prob.base_names), {}, {}
-    pos = X.shape[1]
-    for k in terms:
-        if k == "time_offset":
-            continue
-        c = prob.cand(k)
-        tau = taus.get(k, 900.0) if c.kind == "drift" else None
-        S = columns(prob, k, taus)
-        Sw = prob.wcache(("S", k, tau), lambda: S)
-        cols.append(S)
-        wcols.append(Sw)
-        slices[k] = slice(pos, pos + S.shape[1])
-        active[k] = c.active
-        names += [f"{k}:{c.names[j]}" for j in c.active]
-        pos += S.shape[1]
+    cols, wcols, slices = _linear_design(prob, terms, taus, d if has_off else None)
+    active = {k: prob.cand(k).active for k in slices}
+    names = list(prob.base_names) + [f"{k}:{prob.cand(k).names[j]}" for k in slices for j in prob.cand(k).active]
+    pos = sum(c.shape[1] for c in cols)
     nonlinear_columns = offset_column and (has_off or drift_keys)
-    th0 = lstsq(np.hstack(wcols), yw)[0] if nonlinear_columns else None
+    th0 = lstsq(np.hstack(wcols), yw, want_cov=False)[0] if nonlinear_columns else None
     for k in drift_keys if offset_column else ():
         # Gauss-Newton column of ln(tau) at the profiled grid value (amplitudes of a first solve): the joint
         # covariance then includes the time constant, so the warm-up intervals are not conditional on it
@@ -108,6 +91,49 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_colu
                active=active, X=A if keep_X else None)
 
 
+def _linear_design(prob: Problem, terms, taus, d):
+    """The columns of the linear part of a fit: ``[X, S_k...]`` unwhitened and whitened, and the slice of each
+    term. ``d``: the clock offset of the base design (None: no offset term, the base design as it is). The
+    whitened base design at zero offset and the whitened term columns are cached on the problem
+    (:meth:`Problem.wcache`: they depend on the noise model, fixed between re-estimates)."""
+    if d is not None:
+        X = prob.cand("time_offset").offset.patch_design(prob.X0, d)
+        Xw = prob.whiten(X)
+    else:
+        X = prob.X0
+        Xw = prob.wcache("X0", lambda: prob.X0)
+    cols, wcols, slices = [X], [Xw], {}
+    pos = X.shape[1]
+    for k in terms:
+        if k == "time_offset":
+            continue
+        c = prob.cand(k)
+        tau = taus.get(k, 900.0) if c.kind == "drift" else None
+        S = columns(prob, k, taus)
+        cols.append(S)
+        wcols.append(prob.wcache(("S", k, tau), lambda: S))
+        slices[k] = slice(pos, pos + S.shape[1])
+        pos += S.shape[1]
+    return cols, wcols, slices
+
+
+def profile_chi2(prob: Problem, terms, *, delta=None, taus=None) -> float:
+    """The chi-square of ``fit(prob, terms, delta=delta, taus=taus, offset_column=False)`` -- the same number --
+    without the fit's covariance, residuals and unwhitened design: what the profiles of the clock offset and of
+    the drift time constants evaluate (hundreds of times per diagnosis)."""
+    terms = list(terms)
+    taus = dict(taus or {})
+    has_off = "time_offset" in terms
+    if (has_off and delta is None) or any(prob.cand(k).kind == "drift" and k not in taus for k in terms):
+        return fit(prob, terms, delta=delta, taus=taus, offset_column=False).chi2   # a profile inside
+    _, wcols, _ = _linear_design(prob, terms, taus, float(delta or 0.0) if has_off else None)
+    Aw = np.hstack(wcols)
+    yw = prob.wcache("y", lambda: prob.y)
+    theta, _, _ = lstsq(Aw, yw, want_cov=False)
+    rw = yw - Aw @ theta
+    return float(rw @ rw)
+
+
 def _fit_offset(prob: Problem, terms, taus, hint=None):
     """Profile the clock offset: coarse scan on the library grid (or, with ``hint``, a bracket of +-10 ms
     around a previous estimate), then bounded Brent."""
@@ -115,7 +141,7 @@ def _fit_offset(prob: Problem, terms, taus, hint=None):
     lo, hi = om.bounds
 
     def f(d):
-        return fit(prob, terms, delta=float(d), taus=taus, offset_column=False).chi2
+        return profile_chi2(prob, terms, delta=float(d), taus=taus)
 
     if hint is not None:
         a, b = max(lo, hint - 0.01), min(hi, hint + 0.01)
@@ -140,7 +166,7 @@ def _fit_drift_taus(prob: Problem, terms, taus, delta, missing, offset_column=Tr
             for tau in DRIFT_TAUS:
                 t2 = dict(cur)
                 t2[k] = tau
-                res.append((fit(prob, terms, delta=delta, taus=t2, offset_column=False).chi2, tau))
+                res.append((profile_chi2(prob, terms, delta=delta, taus=t2), tau))
             cur[k] = min(res)[1]
     best = fit(prob, terms, delta=delta, taus=cur, offset_column=offset_column)
     return best

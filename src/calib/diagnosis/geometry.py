@@ -109,6 +109,17 @@ class Geometry:
     obs: dict = field(default_factory=dict)   # observation metadata (see build_observations)
     sample_start_s: float = 0.0          # start of a sample's interval relative to its stamp [s] (the recording's
                                          # sample_time_convention; 0 for interval_start)
+    derived_cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def derived(self, key, fn):
+        """``fn()`` computed once per geometry and cached under ``key``: for quantities that depend on the
+        geometry alone (window samples, reduction weights, inputs), never on the sensor data or the noise --
+        so every noise seed that shares the geometry (``library_from``) shares them too. The windows are fixed
+        before anything is derived (the norm set-up narrows them to the static ones right after
+        :func:`build_geometry`)."""
+        if key not in self.derived_cache:
+            self.derived_cache[key] = fn()
+        return self.derived_cache[key]
 
     @property
     def static(self):

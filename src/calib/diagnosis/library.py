@@ -87,6 +87,11 @@ def window_nodes(geom: Geometry, w: Window):
 
 
 def sample_context(geom: Geometry) -> SampleContext:
+    """The :class:`SampleContext` of ``geom`` (geometry only: computed once per geometry, :meth:`Geometry.derived`)."""
+    return geom.derived("sample_context", lambda: _sample_context(geom))
+
+
+def _sample_context(geom: Geometry) -> SampleContext:
     ts, fs_, ws_, wnb, dwnb, temps, slices, Wsub = [], [], [], [], [], [], [], []
     pos = 0
     ca = TO_MODEL[geom.units_in["accel"]]
@@ -335,6 +340,15 @@ class OffsetModel:
             wi = o["window"][k]
             if geom.windows[wi].kind == "rotation":
                 self.obs_index.setdefault((SENSORS[o["sensor"][k]], wi, o["row"][k]), []).append(k)
+        # patch_design as one scatter: observation k takes the inputs of layout entry src[k] into the three input
+        # columns of its sensor and axis starting at col[k] (the geometry fixes all three)
+        obs, src, col = [], [], []
+        for e, (sn, j, r) in enumerate(layout):
+            for k in self.obs_index[(sn, j, r)]:
+                obs.append(k)
+                src.append(e)
+                col.append(12 * SENSORS.index(sn) + 3 * o["axis"][k])
+        self._patch = (np.array(obs, int)[:, None], np.array(src, int), np.array(col, int)[:, None] + np.arange(3))
 
     @property
     def bounds(self):
@@ -347,12 +361,8 @@ class OffsetModel:
     def patch_design(self, X, delta):
         """Overwrite the input columns of the rotation observations in a copy of the base design X."""
         X = X.copy()
-        v = self.reduced(delta)
-        for (s, j, r), x in zip(self.layout, v):
-            c0 = 12 * SENSORS.index(s)
-            for k in self.obs_index[(s, j, r)]:
-                a = self.geom.obs["axis"][k]
-                X[k, c0 + 3 * a:c0 + 3 * a + 3] = x
+        obs, src, cols = self._patch
+        X[obs, cols] = self.reduced(delta)[src]
         return X
 
     def design_delta(self, delta, M, deriv=1):

@@ -5,8 +5,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, stats
+from scipy import stats
 
+from calib.diagnosis.blas import pivoted_qr, solve_lower, solve_tri
 from calib.diagnosis.geometry import BASE_NAMES, Geometry
 from calib.diagnosis.noise import NoiseFit
 
@@ -80,7 +81,7 @@ class Problem:
         L = self.L if L is None else L
         out = np.empty_like(A)
         for key, idx in self.geom.obs["blocks"].items():
-            out[idx] = linalg.solve_triangular(L[key], A[idx], lower=True, check_finite=False)
+            out[idx] = solve_lower(L[key], A[idx])
         return out
 
     def sigma(self):
@@ -102,10 +103,14 @@ class Problem:
         self.__dict__.pop("_wc", None)
 
     def cand(self, key):
-        for c in self.lib:
-            if c.key == key:
-                return c
-        raise KeyError(key)
+        """The candidate ``key`` of the library (an index by key, rebuilt when the library list is replaced)."""
+        index = self.__dict__.get("_cand_index")
+        if index is None or index[0] is not self.lib or index[1] != len(self.lib):
+            by_key = {}
+            for c in self.lib:
+                by_key.setdefault(c.key, c)
+            index = self.__dict__["_cand_index"] = (self.lib, len(self.lib), by_key)
+        return index[2][key]
 
 
 @dataclass
@@ -142,19 +147,22 @@ def base_estimates(theta):
     return M, b
 
 
-def lstsq(Aw, yw):
-    """Least squares on unit-norm columns by pivoted QR with a rank cut: (theta, cov, rank)."""
+def lstsq(Aw, yw, want_cov: bool = True):
+    """Least squares on unit-norm columns by pivoted QR with a rank cut: (theta, cov, rank); ``want_cov`` False:
+    cov is None (the same theta, for a chi-square alone)."""
     nrm = np.linalg.norm(Aw, axis=0)
     nrm[nrm == 0] = 1.0
     An = Aw / nrm
-    Q, R, piv = linalg.qr(An, mode="economic", pivoting=True, check_finite=False)
+    Q, R, piv = pivoted_qr(An)
     d = np.abs(np.diag(R))
     rank = int(np.sum(d > 1e-9 * d[0])) if d.size else 0
     Rk = R[:rank, :rank]
-    z = linalg.solve_triangular(Rk, Q[:, :rank].T @ yw, check_finite=False)
+    z = solve_tri(Rk, Q[:, :rank].T @ yw, lower=False)
     theta = np.zeros(Aw.shape[1])
     theta[piv[:rank]] = z
-    Ri = linalg.solve_triangular(Rk, np.eye(rank), check_finite=False)
+    if not want_cov:
+        return theta / nrm, None, rank
+    Ri = solve_tri(Rk, np.eye(rank), lower=False)
     cov = np.zeros((Aw.shape[1], Aw.shape[1]))
     cov[np.ix_(piv[:rank], piv[:rank])] = Ri @ Ri.T
     theta /= nrm

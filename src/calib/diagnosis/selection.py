@@ -30,10 +30,12 @@ def _design_blocks(prob: Problem, key):
     return [(si, a) for a in range(3)]
 
 
-def _slow_statistic(prob: Problem, cur: Fit, key):
+def _slow_statistic(prob: Problem, cur: Fit, key, memo: dict | None = None):
     """-2 log likelihood-ratio of adding the slow term ``key`` with the noise of its sensor's blocks
     re-profiled (full ML: level, bias-instability sigma and Tc) under both designs; the drift time constant
-    profiled over a coarse grid. Returns (statistic, extra parameters, tau or None)."""
+    profiled over a coarse grid. Returns (statistic, extra parameters, tau or None). ``memo``: a dict kept for
+    one fit ``cur`` (one step of the selection) that holds the profile of ``cur``'s own design per sensor, which
+    every slow candidate of that sensor shares."""
     c = prob.cand(key)
     blocks = _design_blocks(prob, key)
     Xc = cur.X
@@ -44,7 +46,10 @@ def _slow_statistic(prob: Problem, cur: Fit, key):
                              update=False)
         return sum(v[0] for v in r.values())
 
-    n0 = nll(Xc)
+    memo = {} if memo is None else memo
+    if tuple(blocks) not in memo:
+        memo[tuple(blocks)] = nll(Xc)
+    n0 = memo[tuple(blocks)]
     best = (np.inf, None)
     taus = (300.0, 900.0, 2700.0) if c.kind == "drift" else (None,)
     for tau in taus:
@@ -127,12 +132,13 @@ def stepwise(prob: Problem, base: Fit | None = None):
     refused = prob.__dict__.setdefault("degenerate", {})
     for _ in range(st["max_steps"]):
         table = []
+        memo = {}      # the noise profile of cur's design, shared by the slow candidates of this step
         for k in keys:
             if k in cur.terms or k in refused:
                 continue
             c = prob.cand(k)
             if is_slow(c) and prob.kind == "vector":
-                dchi, dk, tau = _slow_statistic(prob, cur, k)
+                dchi, dk, tau = _slow_statistic(prob, cur, k, memo)
                 f = None
             else:
                 f = fit(prob, cur.terms + [k], taus=cur.taus,
