@@ -10,7 +10,7 @@
     calib calibrate RECORDING.nc --out DIR [--quick] [--noise-record LONG_STATIC.nc]
     calib fieldcal RECORDING.nc [--settings S.yaml] [--out result.nc]
     calib navigate RECORDING.nc --out errors.nc [--calibration DIR/default_calibration.nc]
-    calib diagnose RECORDING.nc --out DIR [--settings FILE.yaml|json] [--noise-record LONG_STATIC.nc]
+    calib diagnose RECORDING.nc --out DIR [--settings FILE.yaml|json] [--noise-record LONG_STATIC.nc] [--limits]
 
 Every recording is checked before any fit (format, time coordinate, masked samples, and the physical
 plausibility of its magnitudes for the declared units: calib.signal.plausibility; --force turns the
@@ -244,6 +244,19 @@ def cmd_navigate(a):
     emit(f"wrote {a.out}")
 
 
+def _at_least_two(text):
+    """argparse type of --limits-reps: an integer >= 2 (argparse then exits 2 naming the option)."""
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 2:
+        raise argparse.ArgumentTypeError(f"{v}: at least 2 repetitions per magnitude")
+    return v
+
+
 def cmd_diagnose(a):
     from calib.diagnosis import diagnose
 
@@ -264,6 +277,11 @@ def cmd_diagnose(a):
         intervals = _fieldcal_intervals(a.fieldcal)
     rep = diagnose(a.recording, settings, out_dir=a.out, intervals=intervals,
                    intervals_source=str(a.fieldcal or ""))
+    if a.limits:   # detection limits on this recording's own noise, added to the report
+        from calib.studies import real_proof
+
+        rep = real_proof.limits_into_report(a.recording, a.out, rep, settings, reps=a.limits_reps,
+                                            intervals=intervals, intervals_source=str(a.fieldcal or ""))
     emit(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
     return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 3)   # exit code: 3 inconclusive
 
@@ -472,6 +490,13 @@ def main(argv=None):
     s.add_argument("--noise-record", default=None,
                    help="long static record of the same unit: its Allan deviation measures the slow noise between "
                         "windows; without it a misfit within what slow noise could do is 'inconclusive'")
+    s.add_argument("--limits", action="store_true",
+                   help="also measure the detection limits on this recording (static-pose recordings): the smallest "
+                        "magnitude of each library term and axis named in >= 95 %% of block-resampled repetitions of "
+                        "its own noise, and the size at which a bias step, ramp or oscillation becomes visible; "
+                        "written to report.json (detection_limits) and report.md")
+    s.add_argument("--limits-reps", type=_at_least_two, default=20,
+                   help="repetitions per magnitude for --limits (default 20)")
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
     from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, IMU-TK, imucal)

@@ -70,7 +70,7 @@ from calib.diagnosis.norm import setup_norm_problem
 from calib.diagnosis.problem import DEFAULT_SETTINGS, REPORT_FORMAT, Fit, Problem
 from calib.diagnosis.report import (allan_figure, build_report, fmt, inconclusive_report, report_markdown,
                                     residual_figure)
-from calib.diagnosis.run import diagnose, diagnose_dataset, diagnose_recording
+from calib.diagnosis.run import diagnose, diagnose_dataset, diagnose_recording, load_for_diagnosis
 from calib.diagnosis.selection import stepwise
 from calib.diagnosis.vector import setup_problem
 
@@ -79,6 +79,6 @@ __all__ = [
     "Candidate", "DiagnosisInputError", "Fit", "Geometry", "NoiseFit", "Problem", "Window",
     "allan_figure", "analyse", "base_design", "build_geometry", "build_library", "build_report", "diagnose",
     "diagnose_dataset", "diagnose_recording", "fit", "fit_noise", "fmt", "inconclusive_report",
-    "is_shape_parameter", "locate", "rate_readings", "reduce_data", "reduced_inputs", "report_markdown",
+    "is_shape_parameter", "load_for_diagnosis", "locate", "rate_readings", "reduce_data", "reduced_inputs", "report_markdown",
     "residual_figure", "setup_norm_problem", "setup_problem", "slow_se_marginal", "stepwise",
 ]

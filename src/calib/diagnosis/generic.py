@@ -27,9 +27,10 @@ chi-square passes can still be wrong physics that happens to absorb the misfit. 
    scale asymmetry and a quartic one on a 45 deg grid. For each found term with a known rival form, the rival
    is fitted in its place; when its BIC is within ``alias_delta_bic`` of the final model's (or better) it is
    reported with the experiment that would separate the two. On the norm model (few static poses taken one
-   after the other), each found term is also replaced by a *generic* basis -- biases drifting in time, or
-   stepping at a segment boundary -- and when that fits within ``generic_delta_bic`` the term is not established
-   (verdict ``inconclusive``).
+   after the other), each found term is also replaced by a *generic* basis -- biases drifting in time, the three
+   biases or one axis's bias stepping at a segment boundary, or one axis's bias oscillating (period span/1 to
+   span/8 in quarter steps; the step time and the period each cost one more BIC parameter) -- and when that fits
+   within ``generic_delta_bic`` the term is not established (verdict ``inconclusive``).
 """
 from __future__ import annotations
 
@@ -60,12 +61,9 @@ def _time_basis(t, t0, span):
 
 
 def _context(prob: Problem):
-    """The sample context of the problem's windows (:func:`calib.diagnosis.library.sample_context`), built once per
-    problem."""
-    cache = prob.__dict__.setdefault("_generic_ctx", {})
-    if "ctx" not in cache:
-        cache["ctx"] = sample_context(prob.geom)
-    return cache["ctx"]
+    """The sample context of the problem's windows (:func:`calib.diagnosis.library.sample_context`, built once per
+    geometry)."""
+    return sample_context(prob.geom)
 
 
 def _axis_column(prob: Problem, ctx, M: dict, sensor: str, i: int, term) -> np.ndarray:
@@ -77,13 +75,32 @@ def _axis_column(prob: Problem, ctx, M: dict, sensor: str, i: int, term) -> np.n
                         TO_MODEL[prob.geom.units_in[sensor]])
 
 
+#: the base K E of a unit scale factor (the reduction of a term is linear in K_i: see :func:`_unit_columns`)
+_UNIT_M = {s: np.eye(3) for s in SENSORS}
+
+
+def _unit_columns(prob: Problem, key, build):
+    """``build()`` -- observation columns of per-sample terms at unit scale factors (``_UNIT_M``) -- computed once
+    per geometry under ``key``: the terms are functions of the window samples only, and the column of a term on
+    axis i at the base K E ``M`` is the unit column times ``M[i, i]`` (:func:`calib.diagnosis.library._reduce_term`
+    scales the term by K_i before the linear reduction)."""
+    return prob.geom.derived(("generic",) + tuple(key), build)
+
+
 def generic_families(prob: Problem, final: Fit) -> list[dict]:
     """The generic families of the vector model (module docstring), each ``{"family", "sensor", "axis",
     "description", "S"}`` with ``S`` (n_obs, k) in the observations' units at the final fit's K E."""
     if prob.kind != "vector":
         return []
-    ctx = _context(prob)
     M, _ = base_estimates(final.theta)
+    return [{**fam, "S": fam["S"] * M[fam["sensor"]][AXES.index(fam["axis"]), AXES.index(fam["axis"])]}
+            for fam in _unit_columns(prob, ("families",), lambda: _generic_families_unit(prob))]
+
+
+def _generic_families_unit(prob: Problem) -> list[dict]:
+    """:func:`generic_families` at unit scale factors (geometry only)."""
+    ctx = _context(prob)
+    M = _UNIT_M
     t = ctx.t
     t0, span = float(t.min()), float(np.ptp(t))
     leg, per = _time_basis(t, t0, span)
@@ -144,6 +161,27 @@ def norm_step_columns(prob: Problem):
     return out
 
 
+#: periods of the norm model's periodic rival: the session span divided by these
+NORM_PERIODS = tuple(k / 4.0 for k in range(4, 33))   # span/1 ... span/8 in quarter steps
+
+
+def norm_periodic_columns(prob: Problem):
+    """Norm model: for every accelerometer axis i and period span/k (:data:`NORM_PERIODS`), the two columns of a
+    bias of that axis oscillating in time (sine and cosine), seen through the norm: ``[(i, k, S (m, 2))]``. Few
+    static poses taken one after the other can fit an oscillating bias with an attitude-dependent term."""
+    ng = prob.norm_generic
+    if prob.kind != "norm" or ng is None:
+        return []
+    t = np.asarray(ng["t"], float)
+    span = max(float(np.ptp(t)), 1e-9)
+    ph = 2.0 * math.pi * (t - t.min()) / span
+    out = []
+    for i in range(3):
+        for k in NORM_PERIODS:
+            out.append((i, k, np.column_stack([ng["G"][:, i] * np.sin(k * ph), ng["G"][:, i] * np.cos(k * ph)])))
+    return out
+
+
 def _vector_step_tests(prob: Problem, final: Fit, L, Q, r_perp) -> list[dict]:
     """Vector model: per sensor axis, a step of the bias between two consecutive windows (at least two windows on
     each side), the boundary scanned; the largest chi-square (1 degree of freedom after the final design is
@@ -152,34 +190,31 @@ def _vector_step_tests(prob: Problem, final: Fit, L, Q, r_perp) -> list[dict]:
     if prob.kind != "vector":
         return []
     geom, o = prob.geom, prob.geom.obs
-    ctx = _context(prob)
     M, _ = base_estimates(final.theta)
     t_win = np.array([geom.time_s[w.i0] for w in geom.windows])
     order = np.argsort(t_win, kind="stable")
     rank_of = np.empty(len(order), int)
     rank_of[order] = np.arange(len(order))
     obs_rank = rank_of[np.asarray(o["window"])]
+    bounds = np.arange(2, len(order) - 1)
     out = []
     for s in SENSORS:
         for i in range(3):
-            B = _axis_column(prob, ctx, M, s, i, 1.0)
-            best, n_b = None, 0
-            for j in range(2, len(order) - 1):
-                col = np.where(obs_rank >= j, B, 0.0)
-                if not np.any(col):
-                    continue
-                gw = prob.whiten(col, L)
-                g = gw - Q @ (Q.T @ gw)
-                nn = float(g @ g)
-                if nn <= 1e-12 * max(float(gw @ gw), 1e-300):
-                    continue
-                n_b += 1
-                c2 = float((g @ r_perp) ** 2 / nn)
-                if best is None or c2 > best[1]:
-                    best = (j, c2)
-            if best is None:
+            B = _unit_columns(prob, ("bias", s, i), lambda: _axis_column(prob, _context(prob), _UNIT_M, s, i, 1.0))
+            B = B * M[s][i, i]
+            # every boundary at once: column j is the bias column on the windows from rank j on
+            C = np.where(obs_rank[:, None] >= bounds[None, :], B[:, None], 0.0)
+            live = np.any(C != 0.0, axis=0)
+            gw = prob.whiten(C[:, live], L)
+            g = gw - Q @ (Q.T @ gw)
+            nn = np.sum(g * g, axis=0)
+            ok = nn > 1e-12 * np.maximum(np.sum(gw * gw, axis=0), 1e-300)
+            n_b = int(np.sum(ok))
+            if n_b == 0:
                 continue
-            j, c2 = best
+            c2s = (g[:, ok].T @ r_perp) ** 2 / nn[ok]
+            jbest = int(np.argmax(c2s))
+            j, c2 = int(bounds[live][ok][jbest]), float(c2s[jbest])
             w0 = geom.windows[order[j]]
             out.append({"family": "step", "sensor": s, "axis": AXES[i],
                         "description": f"bias stepping at t = {geom.time_s[w0.i0]:.0f} s (before window {w0.label})",
@@ -325,9 +360,18 @@ RIVALS = [r for s in ("accel", "gyro") for r in (
 
 
 def _rival_columns(prob: Problem, final: Fit, builder) -> np.ndarray | None:
+    """Columns of the rival form ``builder`` = (kind, sensor) at the final fit's K E (unit columns cached per
+    geometry, :func:`_unit_columns`)."""
     kind, sensor = builder
-    ctx = _context(prob)
     M, _ = base_estimates(final.theta)
+    S, axis = _unit_columns(prob, ("rival", kind, sensor), lambda: _rival_columns_unit(prob, kind, sensor))
+    return S * np.diag(M[sensor])[axis][None, :]
+
+
+def _rival_columns_unit(prob: Problem, kind, sensor):
+    """:func:`_rival_columns` at unit scale factors, and the axis of every column."""
+    ctx = _context(prob)
+    M = _UNIT_M
     x = ctx.f if sensor == "accel" else ctx.w
     xs = x / max(float(np.max(np.abs(x))), 1e-300)
     t = ctx.t
@@ -341,8 +385,8 @@ def _rival_columns(prob: Problem, final: Fit, builder) -> np.ndarray | None:
         else:  # time
             leg, per = _time_basis(t, float(t.min()), float(np.ptp(t)))
             terms = leg[:2] + per[:4]
-        cols += [_axis_column(prob, ctx, M, sensor, i, term) for term in terms]
-    return np.column_stack(cols)
+        cols += [(_axis_column(prob, ctx, M, sensor, i, term), i) for term in terms]
+    return np.column_stack([c for c, _ in cols]), np.array([i for _, i in cols])
 
 
 def _bic_with(prob: Problem, f0: Fit, S: np.ndarray) -> tuple[float, float]:
@@ -357,9 +401,10 @@ def _bic_with(prob: Problem, f0: Fit, S: np.ndarray) -> tuple[float, float]:
 
 
 def generic_rivals(prob: Problem, final: Fit) -> list[dict]:
-    """Norm model: each found term replaced by a bias of every axis moving in time (no physics named). When that
-    fits as well (BIC within ``alias_delta_bic``), the data do not establish the term: few static poses taken
-    one after the other cannot tell an attitude-dependent term from a bias that moved during the session."""
+    """Norm model: each found term replaced by a generic bias model (no physics named; module docstring): biases
+    moving in time, stepping (all three or one axis) or one axis oscillating. When that fits as well (BIC within
+    ``generic_delta_bic``), the data do not establish the term: few static poses taken one after the other cannot
+    tell an attitude-dependent term from a bias that moved during the session."""
     fams = norm_families(prob)
     if not fams or not final.terms:
         return []
@@ -375,6 +420,15 @@ def generic_rivals(prob: Problem, final: Fit) -> list[dict]:
             chi2, bic = _bic_with(prob, f0, S)
             cands.append((f"accelerometer biases stepping between static segments {j - 1} and {j} (a generic "
                           "basis, no physics named)", chi2, bic + math.log(prob.n)))   # + the step time
+        for j, S in norm_step_columns(prob):
+            for i in range(3):   # one axis stepping: a bias jump of a single accelerometer
+                chi2, bic = _bic_with(prob, f0, S[:, i:i + 1])
+                cands.append((f"accelerometer {AXES[i]} bias stepping between static segments {j - 1} and {j} (a "
+                              "generic basis, no physics named)", chi2, bic + math.log(prob.n)))
+        for i, per, S in norm_periodic_columns(prob):
+            chi2, bic = _bic_with(prob, f0, S)
+            cands.append((f"accelerometer {AXES[i]} bias oscillating with period span/{per:g} (a generic basis, no "
+                          "physics named)", chi2, bic + math.log(prob.n)))              # + the period
         name, chi2, bic = min(cands, key=lambda c: c[2])
         if bic <= final.bic(prob.n) + dbic:
             out.append({"replaces": [k], "alternative": name, "generic": True, "chi2": chi2,

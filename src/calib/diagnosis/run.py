@@ -92,13 +92,23 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
     with verdict ``inconclusive`` and the reason -- never a finding. ``out_dir`` None: nothing is written.
     """
     st = {**DEFAULT_SETTINGS, **(settings or {})}
+    ds, refusal = load_for_diagnosis(path, st, intervals, intervals_source)
+    if refusal is not None:
+        _write_refusal(refusal, out_dir)
+        return refusal
+    rep, _ = diagnose_dataset(ds, out_dir, st, path=path)
+    return rep
+
+
+def load_for_diagnosis(path, settings=None, intervals=None, intervals_source: str = ""):
+    """The recording at ``path`` as the diagnosis works on it: ``(dataset, None)`` with a segment table (the file's,
+    the static ``intervals`` given, or static detection), or ``(None, inconclusive report)`` naming why not."""
+    st = {**DEFAULT_SETTINGS, **(settings or {})}
     try:
         ds = recording.load(path)
     except (RecordingError, OSError, ValueError) as exc:
-        rep = inconclusive_report(path, st, f"cannot read the recording: {exc}",
-                                  "give a valid calib-recording-1 file")
-        _write_refusal(rep, out_dir)
-        return rep
+        return None, inconclusive_report(path, st, f"cannot read the recording: {exc}",
+                                         "give a valid calib-recording-1 file")
     segments_from = "the recording's segment table"
     if "segment_index" not in ds:
         try:
@@ -112,13 +122,10 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
                 segments_from = "static detection of the diagnosis (calib.signal.detect; give --fieldcal to use " \
                                 "the intervals of a field calibration)"
         except Exception as exc:  # noqa: BLE001 - any detection failure is an inconclusive input
-            rep = inconclusive_report(path, st, f"no segment table and static detection failed: {exc}",
-                                      "add a segment table (segment_index, segment_kind)")
-            _write_refusal(rep, out_dir)
-            return rep
+            return None, inconclusive_report(path, st, f"no segment table and static detection failed: {exc}",
+                                             "add a segment table (segment_index, segment_kind)")
     ds.attrs["segments_from"] = segments_from
-    rep, _ = diagnose_dataset(ds, out_dir, st, path=path)
-    return rep
+    return ds, None
 
 
 def _write_refusal(rep: dict, out_dir):

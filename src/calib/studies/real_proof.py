@@ -105,6 +105,10 @@ class ProofBase:
         for u in self.baseline.get("untestable", []):
             if u.get("key") == key:
                 return u.get("why") or "untestable", u.get("experiment") or ""
+        if self.K is None and self.prob is not None and self.prob.kind == "vector":
+            return ("detection limits are measured on static-pose recordings (norm model); a turntable session "
+                    "with nominal attitudes has them from the proof's power scan"), \
+                "run the diagnosis_proof rule with power_seeds > 0 on this session's configuration"
         if self.K is None:
             return ("the recording gives no norm calibration to inject into: "
                     + str(self.baseline.get("verdict_reason", ""))[:300]), "record at least 12 static poses"
@@ -585,3 +589,31 @@ def limits_figure(results, path):
         axes[0][0].legend(fontsize=6, loc="lower right")
     fig.tight_layout()
     return figures.save(fig, path)
+
+
+def limits_into_report(path, out_dir, report: dict, settings=None, reps: int = 20, seed: int = 0, intervals=None,
+                       intervals_source: str = "") -> dict:
+    """``calib diagnose FILE --limits``: the detection limits of the recording at ``path`` (loaded as the diagnosis
+    loads it) added to ``report`` as ``detection_limits`` and to ``out_dir``'s report.json / report.md (written
+    atomically). A recording the diagnosis refused gets no limits; the report says why."""
+    from calib.diagnosis import load_for_diagnosis, report_markdown
+
+    ds, refusal = load_for_diagnosis(path, settings, intervals, intervals_source)
+    if refusal is not None:
+        report = {**report, "detection_limits": {"rows": [], "why": refusal.get("verdict_reason")}}
+    else:
+        base = ProofBase(ds, settings, name=str(path))
+        rows = detection_limits(base, reps=reps, seed=seed, progress=True)
+        report = {**report, "detection_limits": {
+            "rows": rows, "reps_per_magnitude": reps, "power": 0.95, "seed": seed,
+            "method": "effects injected through calib.sim.physical's transfer function into block-resampled noise "
+                      "of this recording (calib.studies.real_proof)"}}
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        write_json_atomic({k: v for k, v in report.items() if k != "elapsed_s"}, out_dir / "report.json")
+        md = report_markdown(report)
+        rows = report["detection_limits"]["rows"]
+        md += "\n" + ("\n".join(limits_markdown(rows)) if rows else
+                      f"## Detection limits\n\nnot measured: {report['detection_limits']['why']}\n")
+        write_text_atomic(out_dir / "report.md", md)
+    return report
