@@ -61,6 +61,17 @@ def test_injections_follow_their_closed_forms(tmp_path):
     ang = np.degrees(np.arccos(np.clip(np.sum(f0 * f1, 1) / np.linalg.norm(f0, axis=1) ** 2, -1, 1))) * 3600
     assert 0.1 < np.median(ang) < 15.0          # arcseconds, as injected
     assert np.all(out[~stat] == clean[~stat])
+    # random-walk bias: drawn per seed, on accel x only, nothing from inject(); the end value's spread over seeds
+    # is q sqrt(T) (a random walk's variance grows linearly in time)
+    spec = [{"effect": "random_walk_bias", "sensor": "accel", "axis": "x", "q": 2.0}]
+    assert np.array_equal(unmodelled.inject(sim, clean, spec), clean)
+    ends = []
+    for sd in range(200):
+        d = unmodelled.inject_per_seed(sim, clean, spec, sd) - clean
+        assert np.all(d[:, 1:] == 0)
+        ends.append(d[-1, 0] / (sim.accel.K[0] * dt) / 1e-6)   # ug
+    assert not np.array_equal(unmodelled.inject_per_seed(sim, clean, spec, 1), unmodelled.inject_per_seed(sim, clean, spec, 2))
+    assert abs(np.std(ends) / (2.0 * np.sqrt(n * dt)) - 1.0) < 0.2   # 200 draws: 5 % standard error of a std
 
 
 # --------------------------------------------------------------------------- verdicts

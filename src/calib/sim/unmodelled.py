@@ -22,6 +22,11 @@ Effects (``spec`` entries, each ``{"effect": NAME, ...}``); times are those of t
   ``N_i += K_i k4 1e-6 x_i^4`` (x in g).
 * ``stop_attitude`` -- each static stop of the turntable off its recorded attitude by a small rotation, each
   component drawn from N(0, ``arcsec``^2) (seeded): ``x -> exp(-[phi x]) x`` (an exact rotation) for both triads during the stop.
+* ``random_walk_bias`` -- the bias of one axis wanders as a random walk of density ``q`` (ug/sqrt(s) for
+  accelerometers, deg/h/sqrt(s) for gyros): ``b_k = b_k-1 + q sqrt(dt) w_k``, w ~ N(0, 1), starting at 0; the walk is
+  drawn per noise seed (:func:`inject_per_seed`, stream ``unmodelled_random_walk``), so every seed of a proof
+  session sees another path. The simulator's own bias model is a Gauss-Markov process (bounded); a random walk is
+  not in the library (the diagnosis's bias drift is a warm-up exponential plus a linear trend).
 """
 from __future__ import annotations
 
@@ -32,7 +37,9 @@ import numpy as np
 from calib.core import seeds
 from calib.core.rotations import rotvec_to_dcm
 
-EFFECTS = ("scale_drift", "periodic_bias", "bias_step", "quartic", "stop_attitude")
+EFFECTS = ("scale_drift", "periodic_bias", "bias_step", "quartic", "stop_attitude", "random_walk_bias")
+#: effects drawn anew for every noise seed (applied by :func:`inject_per_seed`, skipped by :func:`inject`)
+PER_SEED = ("random_walk_bias",)
 _AXES = {"x": 0, "y": 1, "z": 2}
 _COLS = {"accel": slice(0, 3), "gyro": slice(3, 6)}
 #: input units per ug (accelerometer, input g) and per deg/h (gyro, input deg/h)
@@ -60,6 +67,8 @@ def inject(sim, clean: np.ndarray, spec: list[dict], segment_index=None, segment
         name = e.get("effect")
         if name not in EFFECTS:
             raise ValueError(f"unmodelled effect {name!r}; one of {', '.join(EFFECTS)}")
+        if name in PER_SEED:
+            continue
         if name == "stop_attitude":
             if segment_index is None or segment_kind is None:
                 raise ValueError("stop_attitude needs the session's segment_index and segment_kind")
@@ -99,4 +108,24 @@ def inject(sim, clean: np.ndarray, spec: list[dict], segment_index=None, segment
                 raise ValueError("quartic: accelerometers only")
             x = mod.inverse(out[:, _COLS[sensor]] / dt)
             out[:, col] += mod.K[i] * float(e["k4_ug_per_g4"]) * 1e-6 * x[:, i] ** 4 * dt
+    return out
+
+
+def inject_per_seed(sim, clean: np.ndarray, spec: list[dict], seed: int) -> np.ndarray:
+    """``clean`` with the effects of ``spec`` that are drawn per noise seed (:data:`PER_SEED`) added for ``seed``;
+    ``clean`` itself when ``spec`` holds none."""
+    todo = [e for e in spec if e.get("effect") in PER_SEED]
+    if not todo:
+        return clean
+    out = np.array(clean, dtype=np.float64, copy=True)
+    dt = 1.0 / float(sim.sample_rate_hz)
+    models = {"accel": sim.accel, "gyro": sim.gyro}
+    for k, e in enumerate(todo):
+        sensor = e.get("sensor", "accel")
+        if sensor not in _COLS:
+            raise ValueError(f"unmodelled effect {e['effect']!r}: sensor {sensor!r}, accel or gyro")
+        i = _axis(e)
+        rng = seeds.stream(int(seed), "unmodelled_random_walk", k)
+        walk = np.cumsum(float(e["q"]) * _SMALL_UNIT[sensor] * math.sqrt(dt) * rng.standard_normal(len(out)))
+        out[:, _COLS[sensor].start + i] += models[sensor].K[i] * walk * dt
     return out

@@ -180,6 +180,11 @@ def power_figure(power: dict, path):
         se = np.sqrt(r * (1 - r) / np.array([q["n"] for q in pts]))
         ax.errorbar(x, r, yerr=se, marker="o", ms=4, capsize=2, lw=1, label=nm,
                     color=f"C{i % 10}", ls="-" if i < 10 else "--")
+    if not power:
+        ax.set_axis_off()
+        ax.text(0.5, 0.5, "no detection-power scan in this run (diagnosis.proof.power_seeds: 0)",
+                ha="center", va="center", transform=ax.transAxes)
+        return figures.save(fig, path)
     ax.axhline(0.8, color="k", lw=0.8, ls=":")
     ax.set_xscale("log")
     ax.set_ylim(-0.03, 1.03)
@@ -215,9 +220,9 @@ def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=
                        power_scales="auto" if power_seeds else None, power_seeds=power_seeds, base=base,
                        progress=lambda i, n, nm: prog(extra=nm), injection=injection)
     write_netcdf(proof_dataset(out), out_dir / "proof.nc", prov)
-    if out.get("power"):
-        write_text(out_dir / "power.csv", power_csv(out["power"]))
-        power_figure(out["power"], out_dir / "power.png")
+    # written also without a scan (power_seeds: 0): an empty table and a figure that says so
+    write_text(out_dir / "power.csv", power_csv(out.get("power") or {}))
+    power_figure(out.get("power") or {}, out_dir / "power.png")
     acc = out["acceptance"]
     metrics = {"n_seeds": n_seeds, "sessions": len(names)}
     for s in out["sessions"]:
