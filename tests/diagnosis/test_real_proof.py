@@ -42,12 +42,12 @@ def test_block_resampling_keeps_each_segment_mean_level_and_leaves_the_rest(miko
 def test_injection_is_the_transfer_function_on_the_recovered_input(mikoff):
     y = mikoff.y
     out = mikoff.inject(y, {"effect": "accel_quadratic_nonlinearity", "axis": "y", "value": 3000.0})
-    g = mikoff.K[1] * mikoff.conv
+    g = mikoff.gain[1]
     u = (y[:, 1] - mikoff.b[1]) / g
     assert np.allclose((out[:, 1] - mikoff.b[1]) / g - u, 3000e-6 * u ** 2, rtol=0, atol=1e-12)
     assert np.array_equal(out[:, [0, 2]], y[:, [0, 2]])
     step = mikoff.inject(y, {"effect": "bias_step", "axis": "z", "ug": 500.0})
-    d = (step[:, 2] - y[:, 2]) / (mikoff.K[2] * mikoff.conv) * 1e6
+    d = (step[:, 2] - y[:, 2]) / mikoff.gain[2] * 1e6
     assert np.allclose(np.unique(np.round(d, 6)), [0.0, 500.0])
 
 

@@ -410,17 +410,18 @@ def generic_rivals(prob: Problem, final: Fit) -> list[dict]:
         return []
     dbic = float(prob.settings.get("generic_delta_bic", 6.0))
     drift = np.hstack([f["S"] for f in fams])
+    steps = norm_step_columns(prob)
     out = []
     for k in final.terms:
         rest = [t for t in final.terms if t != k]
         f0 = fit(prob, rest, taus={t: v for t, v in final.taus.items() if t in rest}) if rest else fit(prob, [])
         cands = [("accelerometer biases drifting in time (Legendre degree 1-2; a generic basis, no physics named)",
                   *_bic_with(prob, f0, drift))]
-        for j, S in norm_step_columns(prob):
+        for j, S in steps:
             chi2, bic = _bic_with(prob, f0, S)
             cands.append((f"accelerometer biases stepping between static segments {j - 1} and {j} (a generic "
                           "basis, no physics named)", chi2, bic + math.log(prob.n)))   # + the step time
-        for j, S in norm_step_columns(prob):
+        for j, S in steps:
             for i in range(3):   # one axis stepping: a bias jump of a single accelerometer
                 chi2, bic = _bic_with(prob, f0, S[:, i:i + 1])
                 cands.append((f"accelerometer {AXES[i]} bias stepping between static segments {j - 1} and {j} (a "

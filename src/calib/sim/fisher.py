@@ -53,9 +53,7 @@ def noise_spectrum(sim, n: int) -> np.ndarray:
     dt = 1.0 / float(sim.sample_rate_hz)
     nz = sim.noise
     K = np.concatenate([sim.accel.K, sim.gyro.K])
-    sig_w = np.array([nz["accel_vrw_ug_rthz"] * 1e-6 * math.sqrt(dt)] * 3 + [nz["gyro_arw_deg_rth"] * 60.0 * math.sqrt(dt)] * 3)
-    sig_b = np.array([nz["accel_bias_instability_ug"] * 1e-6] * 3 + [nz["gyro_bias_instability_deg_h"]] * 3)
-    tau = np.array([nz["accel_bias_corr_time_s"]] * 3 + [nz["gyro_bias_corr_time_s"]] * 3)
+    sig_w, sig_b, tau = simulator.noise_terms(nz, dt)
     w = 2.0 * math.pi * np.arange(n // 2 + 1) / n
     S = np.empty((6, w.size))
     for c in range(6):

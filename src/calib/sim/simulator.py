@@ -341,6 +341,16 @@ class Chunk:
     temperature: np.ndarray     # [degC] at the sample mid-times
 
 
+def noise_terms(noise: dict, dt: float):
+    """The six channels' noise terms (accelerometer x, y, z then gyro x, y, z) in input units: white noise per
+    sample (g s, deg/h s), bias-instability level (g, deg/h) and its correlation time (s)."""
+    sig_white = np.array([noise["accel_vrw_ug_rthz"] * 1e-6 * math.sqrt(dt)] * 3
+                         + [noise["gyro_arw_deg_rth"] * 60.0 * math.sqrt(dt)] * 3)
+    sig_b = np.array([noise["accel_bias_instability_ug"] * 1e-6] * 3 + [noise["gyro_bias_instability_deg_h"]] * 3)
+    tau = np.array([noise["accel_bias_corr_time_s"]] * 3 + [noise["gyro_bias_corr_time_s"]] * 3)
+    return sig_white, sig_b, tau
+
+
 class CountsEngine:
     """Sequential generator of the pulse-count output of a :class:`TriadModel` pair.
 
@@ -365,11 +375,7 @@ class CountsEngine:
         self.pos = 0
         self.normals = _BlockNormals(seed, STREAM_COUNTS, 12)
         dt = self.dt
-        # white noise per sample, in input units x seconds (g s, deg/h s)
-        self.sig_white = np.array([noise["accel_vrw_ug_rthz"] * 1e-6 * math.sqrt(dt)] * 3
-                                  + [noise["gyro_arw_deg_rth"] * 60.0 * math.sqrt(dt)] * 3)
-        sig_b = np.array([noise["accel_bias_instability_ug"] * 1e-6] * 3 + [noise["gyro_bias_instability_deg_h"]] * 3)
-        tau = np.array([noise["accel_bias_corr_time_s"]] * 3 + [noise["gyro_bias_corr_time_s"]] * 3)
+        self.sig_white, sig_b, tau = noise_terms(noise, dt)
         if noise["bias_model"] == "gauss_markov":
             self.a = np.exp(-dt / tau)
             self.c = sig_b * np.sqrt(1.0 - self.a**2)
@@ -584,9 +590,8 @@ def simulate_calibration_session(cfg: dict, seed: int, out_path, truth_path=None
 
 def _noise_json(noise: dict, accel: TriadModel, gyro: TriadModel, dt: float) -> dict:
     d = dict(noise)
-    d["per_sample_white_sigma_count"] = {
-        "accel": (noise["accel_vrw_ug_rthz"] * 1e-6 * math.sqrt(dt) * accel.K).tolist(),
-        "gyro": (noise["gyro_arw_deg_rth"] * 60.0 * math.sqrt(dt) * gyro.K).tolist()}
+    sig_w = noise_terms(noise, dt)[0]
+    d["per_sample_white_sigma_count"] = {"accel": (sig_w[:3] * accel.K).tolist(), "gyro": (sig_w[3:] * gyro.K).tolist()}
     d["noise_block_samples"] = NOISE_BLOCK
     return d
 

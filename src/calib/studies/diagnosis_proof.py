@@ -77,7 +77,6 @@ class FastSession:
         self.clean = self.sim.clean_increments()
         self.clean_base = self.clean          # before any physical / out-of-library injection
         self.n = self.sim.n_samples
-        self.physical = phys
         if phys:
             self.clean = sim_physical.inject(self.sim, self.clean, phys, self.template["temperature"].values)
             self.truth["effects"] = {**copy.deepcopy(phys), **dict(self.truth.get("effects") or {})}

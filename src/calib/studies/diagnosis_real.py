@@ -28,24 +28,41 @@ def import_real(settings_path):
     return ds
 
 
+#: the accelerometer terms that can be injected into a real recording (the physical transfer function of
+#: :mod:`calib.sim.physical`), and their size parameter (registry units)
+ACCEL_TERMS = {"accel_quadratic_nonlinearity": "k2_ug_per_g2", "accel_cubic_nonlinearity": "k3_ug_per_g3",
+               "accel_scale_asymmetry": "asym_ppm"}
+
+
+def norm_accel_model(prob: Problem):
+    """The accelerometer model the norm calibration ``prob`` identifies: ``(gain, b)`` per axis, gain = K_i conv
+    (reading units per g of sensor-axis input; K_i = |row i of K E|), b the bias (reading units)."""
+    M, b = ob.Form("tri9").KE_b(prob.base_theta)
+    return np.linalg.norm(M, axis=1) * TO_MODEL[prob.geom.units_in["accel"]], b
+
+
+def add_accel_term(y, gain, b, eid: str, values):
+    """Rate readings ``y`` (n, 3) with the term ``eid`` of sizes ``values`` (3,) (registry units) added through
+    the physical transfer function on the sensor-axis input u = (y - b) / gain: y + gain (h(u) - u)."""
+    if eid not in ACCEL_TERMS:
+        raise ValueError(f"inject: {eid!r} cannot be injected into a real recording; one of {sorted(ACCEL_TERMS)}")
+    u = (y - b) / gain                                      # sensor-axis input [g]
+    v = np.asarray(values, dtype=float) * 1e-6
+    h = physical.transfer(u, *(v if eid == k else None for k in ACCEL_TERMS))
+    return y + gain * (h - u)
+
+
 def inject_accel_term(ds, prob: Problem, eid: str, params: dict):
     """Add an accelerometer term to a recording's accel samples, in the sensor model identified by the norm
-    calibration ``prob`` (K_i = |row i of M|, sensor-axis input y = (N - b)/K), through the physical transfer
-    function of :mod:`calib.sim.physical` (not the registry formulas the diagnosis fits):
-    N' = b + K conv h(y). ``eid``: a quadratic or cubic nonlinearity or a scale asymmetry (registry units).
-    Returns the modified dataset (rate samples; counts stay counts)."""
-    sizes = {"accel_quadratic_nonlinearity": "k2_ug_per_g2", "accel_cubic_nonlinearity": "k3_ug_per_g3",
-             "accel_scale_asymmetry": "asym_ppm"}
-    if eid not in sizes:
-        raise ValueError(f"inject: {eid!r} cannot be injected into a real recording; one of {sorted(sizes)}")
-    M, b = ob.Form("tri9").KE_b(prob.base_theta)
-    K = np.linalg.norm(M, axis=1)
-    conv = TO_MODEL[prob.geom.units_in["accel"]]
+    calibration ``prob`` (:func:`norm_accel_model`), through the physical transfer function of
+    :mod:`calib.sim.physical` (not the registry formulas the diagnosis fits; :func:`add_accel_term`). ``eid``: a
+    quadratic or cubic nonlinearity or a scale asymmetry (registry units). Returns the modified dataset (rate
+    samples; counts stay counts)."""
+    if eid not in ACCEL_TERMS:
+        raise ValueError(f"inject: {eid!r} cannot be injected into a real recording; one of {sorted(ACCEL_TERMS)}")
+    gain, b = norm_accel_model(prob)
     y, _ = rate_readings(ds, "accel")
-    u = (y - b) / K / conv                                  # sensor-axis input [g]
-    v = np.asarray(effects.resolve({eid: params})[eid][sizes[eid]], dtype=float) * 1e-6
-    h = physical.transfer(u, *(v if eid == k else None for k in sizes))
-    add = (h - u) * (K * conv)[None, :]
+    add = add_accel_term(y, gain, b, eid, effects.resolve({eid: params})[eid][ACCEL_TERMS[eid]]) - y
     out = ds.copy()
     var = out["accel"]
     if var.attrs.get("sample_kind") == "increment":

@@ -33,18 +33,17 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from calib.calibration import objectives as ob
 from calib.core import seeds
 from calib.core.errors import ResultCheckError
 from calib.core.progress import Progress
-from calib.diagnosis import DEFAULT_SETTINGS, TO_MODEL, diagnose_dataset, rate_readings
+from calib.diagnosis import DEFAULT_SETTINGS, diagnose_dataset, rate_readings
 from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
-from calib.sim.physical import transfer
+from calib.studies.diagnosis_real import ACCEL_TERMS, add_accel_term, import_real, norm_accel_model
+from calib.studies.diagnosis_score import alias_keys
 
 AXES = ("x", "y", "z")
 #: the library's accelerometer terms a static-pose recording can test, and their size parameter
-IN_LIBRARY = {"accel_quadratic_nonlinearity": "k2_ug_per_g2", "accel_cubic_nonlinearity": "k3_ug_per_g3",
-              "accel_scale_asymmetry": "asym_ppm"}
+IN_LIBRARY = ACCEL_TERMS
 OUT_OF_LIBRARY = ("bias_step", "bias_ramp", "periodic_bias")
 #: magnitudes tried for a detection limit, in baseline standard errors of the parameter
 MULTIPLES = (2.0, 3.0, 4.0, 5.5, 7.5, 10.0, 14.0, 20.0)
@@ -78,16 +77,11 @@ class ProofBase:
         self.settings = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False}
         self.baseline, self.prob = diagnose_dataset(ds, None, self.settings, path=f"{self.name} (untouched)")
         self.fs = float(ds.attrs["sample_rate_hz"])
-        self.y, self.unit = rate_readings(ds, "accel")
-        self.y = np.asarray(self.y, dtype=float)
+        self.y = np.asarray(rate_readings(ds, "accel")[0], dtype=float)
         self.segments = _static_segments(ds)
-        if self.prob is not None and self.prob.kind == "norm":
-            M, b = ob.Form("tri9").KE_b(self.prob.base_theta)
-            self.K = np.linalg.norm(M, axis=1)
-            self.b = b
-            self.conv = TO_MODEL[self.prob.geom.units_in["accel"]]
-        else:
-            self.K = self.b = self.conv = None
+        # reading units per g of sensor-axis input and bias, from the recording's own norm calibration
+        self.gain, self.b = (norm_accel_model(self.prob) if self.prob is not None and self.prob.kind == "norm"
+                             else (None, None))
 
     # ---------------------------------------------------------------------------------------------------------
     def baseline_value(self, effect: str, pname: str):
@@ -105,11 +99,11 @@ class ProofBase:
         for u in self.baseline.get("untestable", []):
             if u.get("key") == key:
                 return u.get("why") or "untestable", u.get("experiment") or ""
-        if self.K is None and self.prob is not None and self.prob.kind == "vector":
+        if self.gain is None and self.prob is not None and self.prob.kind == "vector":
             return ("detection limits are measured on static-pose recordings (norm model); a turntable session "
                     "with nominal attitudes has them from the proof's power scan"), \
                 "run the diagnosis_proof rule with power_seeds > 0 on this session's configuration"
-        if self.K is None:
+        if self.gain is None:
             return ("the recording gives no norm calibration to inject into: "
                     + str(self.baseline.get("verdict_reason", ""))[:300]), "record at least 12 static poses"
         return None
@@ -136,21 +130,16 @@ class ProofBase:
         terms (registry units), or ``{"effect": "bias_step" | "bias_ramp" | "periodic_bias", "axis": a,
         "ug": size, "period_s": P}`` (size in ug of input)."""
         i = AXES.index(spec.get("axis", "x"))
+        eff = spec["effect"]
+        if eff in IN_LIBRARY:
+            values = np.zeros(3)
+            values[i] = float(spec["value"])
+            return add_accel_term(np.asarray(y, dtype=float), self.gain, self.b, eff, values)
         out = np.array(y, dtype=float, copy=True)
         n = len(out)
-        eff = spec["effect"]
-        gain = self.K[i] * self.conv            # reading units per g of input on axis i
-        if eff in IN_LIBRARY:
-            u = (out[:, i] - self.b[i]) / gain  # sensor-axis input [g]
-            v = float(spec["value"]) * 1e-6
-            h = transfer(u, v if eff == "accel_quadratic_nonlinearity" else None,
-                         v if eff == "accel_cubic_nonlinearity" else None,
-                         v if eff == "accel_scale_asymmetry" else None)
-            out[:, i] = self.b[i] + gain * h
-            return out
         t = np.arange(n) / self.fs
         T = n / self.fs
-        a = float(spec["ug"]) * 1e-6 * gain
+        a = float(spec["ug"]) * 1e-6 * self.gain[i]
         if eff == "bias_step":
             out[:, i] += a * (t >= 0.5 * T)
         elif eff == "bias_ramp":
@@ -180,9 +169,7 @@ def score_injection(base: ProofBase, rep: dict, spec: dict) -> dict:
     """Named / covered / explained of one injected report (module docstring)."""
     eff = spec["effect"]
     found = rep.get("found", [])
-    keys = set()
-    for f in found:
-        keys |= {f["key"]} | {a["key"] for a in f.get("aliases", []) if "key" in a}
+    keys = set().union(*map(alias_keys, found))
     out = {"verdict": rep.get("verdict"), "explained": bool(rep.get("explained")),
            "found": [f["key"] for f in found], "degenerate_accepted": degenerate_accepted(rep)}
     if eff in IN_LIBRARY:
@@ -240,8 +227,8 @@ def detection_limits(base: ProofBase, reps: int = 20, power: float = 0.95, seed:
     todo = [(e, a) for e in effects for a in axes]
     # a baseline that already leaves misfit cannot show when an added one becomes visible
     todo_out = ([(e, a) for e in OUT_OF_LIBRARY for a in axes]
-                if out_of_library and base.K is not None and base.baseline.get("verdict") == "adequate" else [])
-    if out_of_library and base.K is not None and not todo_out:
+                if out_of_library and base.gain is not None and base.baseline.get("verdict") == "adequate" else [])
+    if out_of_library and base.gain is not None and not todo_out:
         rows += [{"effect": e, "axis": a, "parameter": f"{e}[{a}] (ug)", "kind": "out_of_library", "points": [],
                   "limit": None, "detectable": False,
                   "why": f"not measurable here: the untouched recording is already '{base.baseline.get('verdict')}' "
@@ -383,7 +370,7 @@ def _segment_mean_se(base: ProofBase) -> list[float]:
     out = []
     for i in range(3):
         s = [np.std(base.y[idx, i], ddof=1) / math.sqrt(idx.size) for idx in base.segments]
-        out.append(float(np.median(s)) / (base.K[i] * base.conv) * 1e6)
+        out.append(float(np.median(s)) / base.gain[i] * 1e6)
     return out
 
 
@@ -411,8 +398,6 @@ def acceptance(res: dict) -> dict:
 def _one_recording(args):
     """Limits and proof on one recording (runs in a worker process)."""
     settings_path, settings, reps, n_inject, n_out, seed, factor, axes = args
-    from calib.studies.diagnosis_real import import_real   # the shared recordings' importer (same layer)
-
     name = Path(settings_path).stem
     try:
         ds = import_real(settings_path)
@@ -426,7 +411,7 @@ def _one_recording(args):
     limits = detection_limits(base, reps=reps, seed=seeds.child_seed(seed, "limits", name), axes=axes,
                               progress=False)
     out["limits"] = limits
-    if n_static < MIN_POSES or base.K is None:
+    if n_static < MIN_POSES or base.gain is None:
         out["usable"] = False
         out["why"] = (f"{n_static} static segments (a proof base needs >= {MIN_POSES} poses): "
                       + str(base.baseline.get("verdict_reason", ""))[:200])
