@@ -34,6 +34,29 @@ def test_fast_session_is_the_simulator(tmp_path):
     assert np.array_equal(acc2, ds["accel"].values)
 
 
+def test_power_scan_session_reuse_equals_a_fresh_build(tmp_path):
+    """The power scan shares one session's template, simulator and clean signal across effect sizes
+    (FastSession base_of): the seeds' counts and truth equal those of a session built from scratch at that size;
+    a different world (here the latitude) is never reused."""
+    eff = {"accel_lever_arm": {"lever_arms_m": [[0.02, 0.0, 0.0], [0.0, 0.03, 0.0], [0.0, 0.0, -0.025]]}}
+    half = {"accel_lever_arm": {"lever_arms_m": [[0.01, 0.0, 0.0], [0.0, 0.015, 0.0], [0.0, 0.0, -0.0125]]}}
+    first = FastSession({**SHORT, "effects": eff, "conceal": True}, tmp_path / "a", physical=True)
+    reused = FastSession({**SHORT, "effects": half, "conceal": True}, None, physical=True, base_of=first)
+    fresh = FastSession({**SHORT, "effects": half, "conceal": True}, tmp_path / "b", physical=True)
+    assert reused.sim is first.sim and first.reusable_for(fresh)
+    for sd in (3, 4):
+        a, b = reused.dataset(sd), fresh.dataset(sd)
+        assert np.array_equal(a["accel"].values, b["accel"].values)
+        assert np.array_equal(a["gyro"].values, b["gyro"].values)
+        assert not np.array_equal(a["accel"].values, first.dataset(sd)["accel"].values)
+        ta, tb = reused.truth_for(sd), fresh.truth_for(sd)
+        ta.pop("generation_time_s"), tb.pop("generation_time_s")     # the simulator's wall time, not science
+        assert ta == tb
+    other = {**SHORT, "site": {"latitude_deg": 50.0, "height_m": 0.0}, "effects": half, "conceal": True}
+    moved = FastSession(other, tmp_path / "c", physical=True, base_of=first)
+    assert moved.sim is not first.sim and moved.sim.site.latitude_deg == 50.0
+
+
 def test_score_closed_cases():
     truth = {"effects": {"accel_cubic_nonlinearity": {"k3_ug_per_g3": [20.0, -15.0, 10.0]}}}
     found = {"effect": "accel_cubic_nonlinearity", "sensor": "accel", "key": "accel_cubic_nonlinearity/accel",

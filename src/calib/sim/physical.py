@@ -33,6 +33,7 @@ site. Units as in :mod:`calib.sim.effects` (ug, ppm, deg/h, g, s); sample ``k`` 
 from __future__ import annotations
 
 import math
+import weakref
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -66,19 +67,35 @@ def transfer(y, p_quad, p_cub, p_asym):
     return h
 
 
+#: body-to-table attitudes of a simulator's path at the sample boundaries +- the difference step and at the sample
+#: middles: they depend on the path only, so the Fisher bound's many injections of one simulator compute them once
+#: (one entry: the last simulator, held by a weak reference)
+_ATTITUDES: dict = {}
+
+
+def _lever_attitudes(sim, n: int, dt: float):
+    key = (id(sim), n, dt)
+    hit = _ATTITUDES.get("entry")
+    if hit is None or hit[0] != key or hit[1]() is not sim:
+        lat = math.radians(sim.site.latitude_deg)
+        tb = np.arange(n + 1) * dt                                  # sample boundaries
+        args = (lat, sim.site.height_m, sim.site.gravity_m_s2)
+        hit = (key, weakref.ref(sim), (sim.trajectory.kinematics(tb + _H_DIFF_S, *args).cbn,
+                                       sim.trajectory.kinematics(tb - _H_DIFF_S, *args).cbn,
+                                       sim.trajectory.kinematics((np.arange(n) + 0.5) * dt, *args).cbn))
+        _ATTITUDES["entry"] = hit
+    return hit[2]
+
+
 def _lever_increments(sim, r, E_a, n, dt):
     """Integrated extra specific force [g s] along each accelerometer axis (n, 3) of proof masses at body
     positions ``r`` (row i, metres), from the numerically differentiated motion of each proof mass."""
-    lat = math.radians(sim.site.latitude_deg)
-    tb = np.arange(n + 1) * dt                                  # sample boundaries
-    kin_p = sim.trajectory.kinematics(tb + _H_DIFF_S, lat, sim.site.height_m, sim.site.gravity_m_s2)
-    kin_m = sim.trajectory.kinematics(tb - _H_DIFF_S, lat, sim.site.height_m, sim.site.gravity_m_s2)
-    kin_c = sim.trajectory.kinematics((np.arange(n) + 0.5) * dt, lat, sim.site.height_m, sim.site.gravity_m_s2)
+    cbn_p, cbn_m, cbn_c = _lever_attitudes(sim, n, dt)
     out = np.empty((n, 3))
     for i in range(3):
-        v = (kin_p.cbn @ r[i] - kin_m.cbn @ r[i]) / (2.0 * _H_DIFF_S)   # proof-mass velocity, table frame
+        v = (cbn_p @ r[i] - cbn_m @ r[i]) / (2.0 * _H_DIFF_S)           # proof-mass velocity, table frame
         dv_n = v[1:] - v[:-1]                                            # velocity change over each sample
-        dv_b = np.einsum("kji,kj->ki", kin_c.cbn, dv_n)                  # C_n^b at the sample's middle
+        dv_b = np.einsum("kji,kj->ki", cbn_c, dv_n)                      # C_n^b at the sample's middle
         out[:, i] = dv_b @ E_a[i] / STANDARD_GRAVITY
     return out
 

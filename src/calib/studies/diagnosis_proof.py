@@ -55,7 +55,11 @@ class FastSession:
     """
 
     def __init__(self, cfg: dict, workdir=None, template_seed: int = 0, unmodelled=None, drop_vars=(),
-                 physical: bool = False):
+                 physical: bool = False, base_of: "FastSession | None" = None):
+        """``base_of``: a session built from the same configuration apart from the sizes of effects made by
+        :mod:`calib.sim.physical` (the power scan); its template, simulator and clean signal are reused and only
+        the physical injection is redone (the result equals a fresh build: tests/diagnosis/test_diagnosis_proof.py).
+        Its files are not rewritten: such a session is diagnosed in memory only."""
         self.cfg = copy.deepcopy(cfg)
         phys = {}
         if physical:   # the library's own effects made by calib.sim.physical, a path the detector does not share
@@ -63,19 +67,30 @@ class FastSession:
             phys = sim_effects.resolve({k: v for k, v in eff.items() if k in sim_physical.EFFECTS})
             self.cfg["effects"] = {k: v for k, v in eff.items() if k not in sim_physical.EFFECTS}
         self.drop_vars = list(drop_vars or ())   # channels the recording does not have (e.g. no temperature)
+        self.unmodelled = list(unmodelled or [])
+        self.physical = bool(physical)
+        self.template_seed = int(template_seed)
         self._tmp = None
-        if workdir is None:
-            self._tmp = tempfile.TemporaryDirectory(prefix="calib-diag-")
-            workdir = self._tmp.name
-        workdir = Path(workdir)
-        self.path = workdir / "template.nc"
-        self.truth_path = workdir / "template.truth.json"
-        simulator.simulate_calibration_session(self.cfg, template_seed, self.path, self.truth_path)
-        self.template = recording.load(self.path)
-        self.truth = json.loads(self.truth_path.read_text())
-        self.sim = simulator.build_calibration_simulator(self.cfg, template_seed)
-        self.clean = self.sim.clean_increments()
-        self.clean_base = self.clean          # before any physical / out-of-library injection
+        if base_of is not None and not base_of.reusable_for(self):
+            base_of = None
+        if base_of is not None:
+            self.path, self.truth_path = base_of.path, base_of.truth_path
+            self.template, self.sim, self.clean_base = base_of.template, base_of.sim, base_of.clean_base
+            self._truth_file = base_of._truth_file
+        else:
+            if workdir is None:
+                self._tmp = tempfile.TemporaryDirectory(prefix="calib-diag-")
+                workdir = self._tmp.name
+            workdir = Path(workdir)
+            self.path = workdir / "template.nc"
+            self.truth_path = workdir / "template.truth.json"
+            simulator.simulate_calibration_session(self.cfg, template_seed, self.path, self.truth_path)
+            self.template = recording.load(self.path)
+            self._truth_file = json.loads(self.truth_path.read_text())
+            self.sim = simulator.build_calibration_simulator(self.cfg, template_seed)
+            self.clean_base = self.sim.clean_increments()   # before any physical / out-of-library injection
+        self.truth = copy.deepcopy(self._truth_file)
+        self.clean = self.clean_base
         self.n = self.sim.n_samples
         if phys:
             self.clean = sim_physical.inject(self.sim, self.clean, phys, self.template["temperature"].values)
@@ -85,15 +100,21 @@ class FastSession:
             self.truth["injection"] = ("calib.sim.physical (proof masses, integrated motion, resampled stream); "
                                        "world effects by the simulator")
             self.truth["config"]["effects"] = copy.deepcopy(cfg.get("effects") or {})
-        self.unmodelled = list(unmodelled or [])
         if self.unmodelled:   # physics outside the library, by a path the diagnosis does not share
             self.clean = sim_unmodelled.inject(self.sim, self.clean, self.unmodelled,
                                                self.template["segment_index"].values,
                                                self.template["segment_kind"].values, seed=template_seed)
             self.truth["unmodelled"] = copy.deepcopy(self.unmodelled)
-        if phys or self.unmodelled:   # the end-to-end file holds what the seeds hold
+        if (phys or self.unmodelled) and base_of is None:   # the end-to-end file holds what the seeds hold
             recording.write(self.dataset(template_seed, for_file=True), self.path)
             write_json_atomic(self.truth_for(template_seed), self.truth_path)
+
+    def reusable_for(self, other: "FastSession") -> bool:
+        """Whether ``other`` differs from this session only in effects made by the physical path (so this
+        session's template, simulator and clean signal are its own)."""
+        return (self.physical and other.physical and not self.unmodelled and not other.unmodelled
+                and self.template_seed == other.template_seed and self.drop_vars == other.drop_vars
+                and self.cfg == other.cfg)
 
     def counts(self, seed: int):
         """Accelerometer and gyro counts of noise seed ``seed`` (out-of-library effects drawn per seed added)."""
@@ -212,25 +233,8 @@ def _proof_worker(args):
         else:
             e2e = None
         st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False}
-        prob0 = None
-        rows = []
-        for sd in seed_list:
-            ts = time.perf_counter()
-            ds = fsn.dataset(sd)
-            rep, prob = diagnose_dataset(ds, None, st, path=f"{name} seed {sd}", library_from=prob0)
-            if prob0 is None and prob is not None:
-                prob0 = prob
-            sc = score(rep, fsn.truth_for(sd), kind)
-            sc["seed"] = int(sd)
-            sc["elapsed_s"] = time.perf_counter() - ts
-            sc["found_detail"] = [{"key": f["key"], "aliases": [a["key"] for a in f["aliases"]],
-                                   "delta_bic": f.get("delta_bic")} for f in rep.get("found", [])]
-            rows.append(sc)
-            if sd == seed_list[0] and out_dir and scale == 1.0 and prob is not None:
-                res_fits = prob.last_fits
-                if res_fits is not None:
-                    residual_figure(prob, res_fits, Path(out_dir) / "figures" / f"residuals_{name}.png",
-                                    title=f"{name}, seed {sd}: residual / sigma before (open) and after (filled)")
+        fig = Path(out_dir) / "figures" / f"residuals_{name}.png" if out_dir and scale == 1.0 else None
+        rows = _seed_rows(fsn, name, kind, seed_list, st, fig)
     fisher_bounds = None
     if infos is not None:
         # every size parameter free, and only those the diagnosis estimated free (the others held at their truth:
@@ -242,6 +246,53 @@ def _proof_worker(args):
             fisher_bounds["as_fitted"].update(sim_fisher.bounds_from(J, enames, free=fitted))
     return {"name": name, "kind": kind, "scale": scale, "rows": rows, "end_to_end": e2e, "fisher": fisher_bounds,
             "t_build_s": t_build, "t_total_s": time.perf_counter() - t0}
+
+
+def _seed_rows(fsn: FastSession, name: str, kind: str, seed_list, st: dict, fig=None) -> list:
+    """Every noise seed of ``seed_list`` diagnosed blind and scored (the library is built at the first seed's
+    base solution and reused for the others). ``fig``: where to draw the first seed's residual figure."""
+    prob0 = None
+    rows = []
+    for sd in seed_list:
+        ts = time.perf_counter()
+        ds = fsn.dataset(sd)
+        rep, prob = diagnose_dataset(ds, None, st, path=f"{name} seed {sd}", library_from=prob0)
+        if prob0 is None and prob is not None:
+            prob0 = prob
+        sc = score(rep, fsn.truth_for(sd), kind)
+        sc["seed"] = int(sd)
+        sc["elapsed_s"] = time.perf_counter() - ts
+        sc["found_detail"] = [{"key": f["key"], "aliases": [a["key"] for a in f["aliases"]],
+                               "delta_bic": f.get("delta_bic")} for f in rep.get("found", [])]
+        rows.append(sc)
+        if sd == seed_list[0] and fig is not None and prob is not None and prob.last_fits is not None:
+            residual_figure(prob, prob.last_fits, fig,
+                            title=f"{name}, seed {sd}: residual / sigma before (open) and after (filled)")
+    return rows
+
+
+def _power_worker(args):
+    """The detection-power scan of one session: every scale over its seeds (runs in a worker process). The
+    template, simulator and clean signal are built once and shared by the scales (:class:`FastSession`
+    ``base_of``); each scale's library is built at its own first seed, as in :func:`_proof_worker`."""
+    name, seed_list, settings, scales, effs, base, injection = args
+    kind = PROOF_SESSIONS[name][0]
+    st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False}
+    out, prev = [], None
+    with tempfile.TemporaryDirectory(prefix="calib-power-") as tmp:
+        for sc, eff in zip(scales, effs):
+            t0 = time.perf_counter()
+            cfg = proof_config(name, eff, base)
+            spec, drop = cfg.pop("unmodelled", None), cfg.pop("drop_vars", ())
+            fsn = FastSession(cfg, tmp if prev is None else None, unmodelled=spec, drop_vars=drop,
+                              physical=injection == "physical", base_of=prev)
+            if prev is None or not prev.reusable_for(fsn):
+                prev = fsn
+            t_build = time.perf_counter() - t0
+            rows = _seed_rows(fsn, name, kind, seed_list, st)
+            out.append({"name": name, "kind": kind, "scale": float(sc), "rows": rows, "end_to_end": None,
+                        "fisher": None, "t_build_s": t_build, "t_total_s": time.perf_counter() - t0})
+    return out
 
 
 def _summarise(res) -> dict:
@@ -345,22 +396,25 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
 
     # worker processes by fork: spawn would re-import the caller's __main__ (a Snakemake rule script cannot be
     # re-imported); every worker seeds itself, so the result does not depend on the number of workers
-    def run(jobs_):
+    def run(worker, jobs_):
         res_ = []
+
+        def got(r):
+            for x in (r if isinstance(r, list) else [r]):
+                res_.append(x)
+                if progress:
+                    progress(len(res_), None, x["name"])
+
         if workers > 1:
             with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as ex:
-                for r in ex.map(_proof_worker, jobs_):
-                    res_.append(r)
-                    if progress:
-                        progress(len(res_), len(jobs_), r["name"])
+                for r in ex.map(worker, jobs_):
+                    got(r)
         else:
             for j in jobs_:
-                res_.append(_proof_worker(j))
-                if progress:
-                    progress(len(res_), len(jobs_), j[0])
+                got(worker(j))
         return res_
 
-    results = run(jobs)
+    results = run(_proof_worker, jobs)
     summary = [_summarise(r) for r in results]
     power, presults = {}, []
     if power_scales:
@@ -371,10 +425,9 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
                 continue
             scales = power_scales if not isinstance(power_scales, str) else _power_scales(r)
             r["power_scales"] = list(scales)
-            for sc in scales:
-                pjobs.append((r["name"], [seeds.child_seed(seed, "power", k) for k in range(power_seeds)], None, settings,
-                              float(sc), _scale_effects(eff, sc), base, injection))
-        presults = run(pjobs)
+            pjobs.append((r["name"], [seeds.child_seed(seed, "power", k) for k in range(power_seeds)], settings,
+                          [float(sc) for sc in scales], [_scale_effects(eff, sc) for sc in scales], base, injection))
+        presults = run(_power_worker, pjobs)
         power = _power_table(results + presults, names)
     timings = {"total_s": time.perf_counter() - t0, "workers": workers,
                "sessions": {r["name"] + ("" if r["scale"] == 1.0 else f"@{r['scale']:g}"):
