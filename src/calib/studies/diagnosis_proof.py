@@ -16,7 +16,7 @@ import multiprocessing as mp
 import os
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
@@ -396,38 +396,57 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
 
     # worker processes by fork: spawn would re-import the caller's __main__ (a Snakemake rule script cannot be
     # re-imported); every worker seeds itself, so the result does not depend on the number of workers
-    def run(worker, jobs_):
-        res_ = []
+    def power_job(r):
+        """The power scan of single-effect session result ``r`` (its scales from the chi-square gain of ``r``)."""
+        kind, eff, _ = PROOF_SESSIONS[r["name"]]
+        if not power_scales or kind != "single":
+            return None
+        scales = power_scales if not isinstance(power_scales, str) else _power_scales(r)
+        r["power_scales"] = list(scales)
+        return (r["name"], [seeds.child_seed(seed, "power", k) for k in range(power_seeds)], settings,
+                [float(sc) for sc in scales], [_scale_effects(eff, sc) for sc in scales], base, injection)
 
-        def got(r):
-            for x in (r if isinstance(r, list) else [r]):
-                res_.append(x)
-                if progress:
-                    progress(len(res_), None, x["name"])
+    main, scans, n_done = {}, {}, [0]
 
-        if workers > 1:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as ex:
-                for r in ex.map(worker, jobs_):
+    def got(r):
+        for x in (r if isinstance(r, list) else [r]):
+            n_done[0] += 1
+            if progress:
+                progress(n_done[0], None, x["name"])
+
+    # one pool for both phases: a session's power scan is queued as soon as its own result is in (no barrier)
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as ex:
+            # single-effect sessions first: their power scans (the longest jobs) then queue early
+            first = sorted(jobs, key=lambda j: PROOF_SESSIONS[j[0]][0] != "single")
+            pending = {ex.submit(_proof_worker, j): ("main", j[0]) for j in first}
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for f in done:
+                    what, nm = pending.pop(f)
+                    r = f.result()
                     got(r)
-        else:
-            for j in jobs_:
-                got(worker(j))
-        return res_
-
-    results = run(_proof_worker, jobs)
+                    if what == "main":
+                        main[nm] = r
+                        pj = power_job(r)
+                        if pj is not None:
+                            pending[ex.submit(_power_worker, pj)] = ("power", nm)
+                    else:
+                        scans[nm] = r
+    else:
+        for j in jobs:
+            r = _proof_worker(j)
+            got(r)
+            main[j[0]] = r
+            pj = power_job(r)
+            if pj is not None:
+                scans[j[0]] = _power_worker(pj)
+                got(scans[j[0]])
+    results = [main[nm] for nm in names]
     summary = [_summarise(r) for r in results]
-    power, presults = {}, []
+    presults = [x for nm in names for x in scans.get(nm, [])]
+    power = {}
     if power_scales:
-        pjobs = []
-        for r in results:
-            kind, eff, _ = PROOF_SESSIONS[r["name"]]
-            if kind != "single":
-                continue
-            scales = power_scales if not isinstance(power_scales, str) else _power_scales(r)
-            r["power_scales"] = list(scales)
-            pjobs.append((r["name"], [seeds.child_seed(seed, "power", k) for k in range(power_seeds)], settings,
-                          [float(sc) for sc in scales], [_scale_effects(eff, sc) for sc in scales], base, injection))
-        presults = run(_power_worker, pjobs)
         power = _power_table(results + presults, names)
     timings = {"total_s": time.perf_counter() - t0, "workers": workers,
                "sessions": {r["name"] + ("" if r["scale"] == 1.0 else f"@{r['scale']:g}"):
