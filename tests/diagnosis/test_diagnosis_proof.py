@@ -3,6 +3,8 @@ its per-seed sessions are the simulator's own output, the scoring rules on close
 products."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -55,6 +57,25 @@ def test_power_scan_session_reuse_equals_a_fresh_build(tmp_path):
     other = {**SHORT, "site": {"latitude_deg": 50.0, "height_m": 0.0}, "effects": half, "conceal": True}
     moved = FastSession(other, tmp_path / "c", physical=True, base_of=first)
     assert moved.sim is not first.sim and moved.sim.site.latitude_deg == 50.0
+
+
+def test_geometry_reuse_gives_the_reports_of_a_fresh_set_up(tmp_path):
+    """A recording of the same template diagnosed with the geometry of another one (geometry_from: the power
+    scan) gives the report of a set-up from scratch, number for number."""
+    from calib.diagnosis import diagnose_dataset
+
+    eff = {"accel_cubic_nonlinearity": {"k3_ug_per_g3": [60.0, -40.0, 30.0]}}
+    small = {**eff["accel_cubic_nonlinearity"], "k3_ug_per_g3": [30.0, -20.0, 15.0]}
+    a = FastSession({**SHORT, "effects": eff, "conceal": True}, tmp_path / "a", physical=True)
+    b = FastSession({**SHORT, "effects": {"accel_cubic_nonlinearity": small}, "conceal": True}, None,
+                    physical=True, base_of=a)
+    st = {"figures": False}
+    _, pa = diagnose_dataset(a.dataset(11), None, st, path="p")
+    fresh, _ = diagnose_dataset(b.dataset(12), None, st, path="p")
+    reused, pb = diagnose_dataset(b.dataset(12), None, st, path="p", geometry_from=pa)
+    assert pb.geom is pa.geom and pb.lib is not pa.lib
+    fresh.pop("elapsed_s"), reused.pop("elapsed_s")
+    assert json.dumps(reused, sort_keys=True) == json.dumps(fresh, sort_keys=True)   # NaN entries compare equal
 
 
 def test_score_closed_cases():

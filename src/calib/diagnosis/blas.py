@@ -15,6 +15,7 @@ per-call validation and workspace queries, which cost as much as the arithmetic 
 from __future__ import annotations
 
 import ctypes
+import os
 
 import numpy as np
 from scipy.linalg import get_lapack_funcs
@@ -25,8 +26,20 @@ _BLAS_FUNCS = (("scipy_openblas_set_num_threads64_", "scipy_openblas_get_num_thr
                ("openblas_set_num_threads64_", "openblas_get_num_threads64_"))
 
 
+_HANDLES: dict = {}   # per process id (a forked worker maps the same libraries): reading the map costs ~7 ms
+
+
 def _blas_handles():
-    """(set, get) thread-count functions of every OpenBLAS library mapped into this process."""
+    """(set, get) thread-count functions of every OpenBLAS library mapped into this process (looked up once per
+    process: the libraries are mapped when numpy and scipy are imported, before the first diagnosis)."""
+    pid = os.getpid()
+    if pid not in _HANDLES:
+        _HANDLES.clear()
+        _HANDLES[pid] = _find_blas_handles()
+    return _HANDLES[pid]
+
+
+def _find_blas_handles():
     out = []
     try:
         with open("/proc/self/maps") as fh:

@@ -443,7 +443,14 @@ def window_inputs(geom: Geometry, w: Window, delta_s: float = 0.0, latitude_deg=
 
 def reduced_inputs(geom: Geometry, delta_s=0.0, latitude_deg=None, gravity_m_s2=None, only_rotation=False):
     """Reduced inputs per sensor: list per window of (rows, 3) [model input units], and the bias rows
-    (rows,) = W^T 1."""
+    (rows,) = W^T 1. A function of the geometry and the arguments only: computed once per geometry and argument
+    set (:meth:`Geometry.derived`; the callers only read the arrays)."""
+    key = ("reduced_inputs", float(delta_s), None if latitude_deg is None else float(latitude_deg),
+           None if gravity_m_s2 is None else float(gravity_m_s2), bool(only_rotation))
+    return geom.derived(key, lambda: _reduced_inputs(geom, delta_s, latitude_deg, gravity_m_s2, only_rotation))
+
+
+def _reduced_inputs(geom: Geometry, delta_s, latitude_deg, gravity_m_s2, only_rotation):
     xa, xg, one_a, one_g = [], [], [], []
     ga, wg = site_vectors(geom, latitude_deg, gravity_m_s2)
     for w in geom.windows:

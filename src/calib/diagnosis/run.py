@@ -37,13 +37,14 @@ def diagnose(recording_or_dataset, settings=None, *, out_dir=None, path: str = "
     return rep
 
 
-def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=None):
+def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=None, geometry_from=None):
     """Diagnose an in-memory recording. Returns (report dict, Problem or None). Writes files when
-    ``out_dir`` is given."""
+    ``out_dir`` is given. ``library_from`` / ``geometry_from``: a previous Problem on the same geometry whose
+    library / geometry is reused (:func:`calib.diagnosis.vector.setup_problem`)."""
     st = {**DEFAULT_SETTINGS, **(settings or {})}
     t0 = time.perf_counter()
     with single_thread_blas():
-        rep, prob = _diagnose_dataset(ds, out_dir, st, path, library_from)
+        rep, prob = _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from)
     rep["elapsed_s"] = time.perf_counter() - t0
     if ds.attrs.get("segments_from"):
         rep["segments_from"] = str(ds.attrs["segments_from"])
@@ -55,11 +56,11 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
     return rep, prob
 
 
-def _diagnose_dataset(ds, out_dir, st, path, library_from):
+def _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from=None):
     prob = None
     try:
         if "nominal_attitude" in ds or (library_from is not None and library_from.kind == "vector"):
-            prob = setup_problem(ds, st, library_from=library_from)
+            prob = setup_problem(ds, st, library_from=library_from, geometry_from=geometry_from)
         else:
             prob = setup_norm_problem(ds, st)
         rank = np.linalg.matrix_rank(prob.whiten(prob.X0))

@@ -17,15 +17,21 @@ from calib.diagnosis.library import build_library
 from calib.diagnosis.noise import covariance_blocks, covariance_parts, fit_noise, reml_slow, with_measured_slow
 from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, base_estimates
 
-def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
+def setup_problem(ds, settings=None, *, library_from=None, geometry_from=None) -> Problem:
     """Observations, noise model, covariance, base design and effect library of a recording dataset.
 
     ``library_from``: a previous :class:`Problem` on the same geometry whose library (signatures at its base
-    solution) is reused (the proof: every noise seed of a session shares the geometry).
+    solution) is reused (the proof: every noise seed of a session shares the geometry). ``geometry_from``: a
+    previous :class:`Problem` on the same geometry (the same segments, attitudes, table angle and temperature;
+    other sensor data) whose geometry, covariance parts and base design are reused, the library being built anew
+    at this recording's base solution: the same numbers as a set-up from scratch (the proof's power scan).
     """
     st = {**DEFAULT_SETTINGS, **(settings or {})}
     if library_from is not None:
-        geom = library_from.geom
+        geometry_from = None
+    shared = library_from if library_from is not None else geometry_from
+    if shared is not None:
+        geom = shared.geom
     else:
         geom = build_geometry(ds, max_offset_s=st["max_offset_s"], min_static=st["min_static"])
     if geom.n_samples / geom.fs < st["min_duration_s"]:
@@ -35,15 +41,15 @@ def setup_problem(ds, settings=None, *, library_from=None) -> Problem:
         raise DiagnosisInputError("no nominal attitudes: the vector model needs them", "use the norm problem")
     y, readings = reduce_data(geom, ds)
     noise = fit_noise(geom, readings, pulse_counter_channels(ds))
-    if library_from is not None:
-        parts = library_from.parts
-        xr, ones = None, None
-        X0 = library_from.X0
+    if shared is not None:
+        parts = shared.parts
+        xr, ones = reduced_inputs(geom) if library_from is None else (None, None)
+        X0 = shared.X0
     else:
         parts = {s: covariance_parts(geom, s) for s in SENSORS}
         xr, ones = reduced_inputs(geom)
         X0 = base_design(geom, xr, ones)
-    cache = library_from.cache if library_from is not None else {}
+    cache = shared.cache if shared is not None else {}
     _, L = covariance_blocks(geom, noise, parts, cache)        # first guess (Allan random walk)
     prob = Problem(geom, y, noise, parts, L, X0, [], readings, settings=st, cache=cache)
     # the measured noise of the adequacy tests: the session's Allan deviation, and the slow part of a long static

@@ -234,7 +234,7 @@ def _proof_worker(args):
             e2e = None
         st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False}
         fig = Path(out_dir) / "figures" / f"residuals_{name}.png" if out_dir and scale == 1.0 else None
-        rows = _seed_rows(fsn, name, kind, seed_list, st, fig)
+        rows, _ = _seed_rows(fsn, name, kind, seed_list, st, fig)
     fisher_bounds = None
     if infos is not None:
         # every size parameter free, and only those the diagnosis estimated free (the others held at their truth:
@@ -248,15 +248,18 @@ def _proof_worker(args):
             "t_build_s": t_build, "t_total_s": time.perf_counter() - t0}
 
 
-def _seed_rows(fsn: FastSession, name: str, kind: str, seed_list, st: dict, fig=None) -> list:
+def _seed_rows(fsn: FastSession, name: str, kind: str, seed_list, st: dict, fig=None, geometry_from=None):
     """Every noise seed of ``seed_list`` diagnosed blind and scored (the library is built at the first seed's
-    base solution and reused for the others). ``fig``: where to draw the first seed's residual figure."""
+    base solution and reused for the others). ``fig``: where to draw the first seed's residual figure.
+    ``geometry_from``: a Problem of a session with the same template whose geometry the first seed reuses.
+    Returns (rows, the first seed's Problem)."""
     prob0 = None
     rows = []
     for sd in seed_list:
         ts = time.perf_counter()
         ds = fsn.dataset(sd)
-        rep, prob = diagnose_dataset(ds, None, st, path=f"{name} seed {sd}", library_from=prob0)
+        rep, prob = diagnose_dataset(ds, None, st, path=f"{name} seed {sd}", library_from=prob0,
+                                     geometry_from=geometry_from if prob0 is None else None)
         if prob0 is None and prob is not None:
             prob0 = prob
         sc = score(rep, fsn.truth_for(sd), kind)
@@ -268,7 +271,7 @@ def _seed_rows(fsn: FastSession, name: str, kind: str, seed_list, st: dict, fig=
         if sd == seed_list[0] and fig is not None and prob is not None and prob.last_fits is not None:
             residual_figure(prob, prob.last_fits, fig,
                             title=f"{name}, seed {sd}: residual / sigma before (open) and after (filled)")
-    return rows
+    return rows, prob0
 
 
 def _power_worker(args):
@@ -278,7 +281,7 @@ def _power_worker(args):
     name, seed_list, settings, scales, effs, base, injection = args
     kind = PROOF_SESSIONS[name][0]
     st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False}
-    out, prev = [], None
+    out, prev, prob_prev = [], None, None
     with tempfile.TemporaryDirectory(prefix="calib-power-") as tmp:
         for sc, eff in zip(scales, effs):
             t0 = time.perf_counter()
@@ -286,10 +289,12 @@ def _power_worker(args):
             spec, drop = cfg.pop("unmodelled", None), cfg.pop("drop_vars", ())
             fsn = FastSession(cfg, tmp if prev is None else None, unmodelled=spec, drop_vars=drop,
                               physical=injection == "physical", base_of=prev)
+            same = prev is not None and fsn.template is prev.template      # the template (geometry) is shared
             if prev is None or not prev.reusable_for(fsn):
                 prev = fsn
             t_build = time.perf_counter() - t0
-            rows = _seed_rows(fsn, name, kind, seed_list, st)
+            rows, prob0 = _seed_rows(fsn, name, kind, seed_list, st, geometry_from=prob_prev if same else None)
+            prob_prev = prob0
             out.append({"name": name, "kind": kind, "scale": float(sc), "rows": rows, "end_to_end": None,
                         "fisher": None, "t_build_s": t_build, "t_total_s": time.perf_counter() - t0})
     return out
