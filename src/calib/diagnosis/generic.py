@@ -389,15 +389,23 @@ def _rival_columns_unit(prob: Problem, kind, sensor):
     return np.column_stack([c for c, _ in cols]), np.array([i for _, i in cols])
 
 
-def _bic_with(prob: Problem, f0: Fit, S: np.ndarray) -> tuple[float, float]:
-    """chi-square and BIC of the fit ``f0`` with the columns ``S`` added (GLS on the problem's noise)."""
-    A = np.hstack([prob.whiten(f0.X), prob.whiten(S)])
+def _bic_with(prob: Problem, f0: Fit, S: np.ndarray, base=None) -> tuple[float, float]:
+    """chi-square and BIC of the fit ``f0`` with the columns ``S`` added (GLS on the problem's noise).
+    ``base``: :func:`_whitened_base` of ``f0`` when many column sets are tried against the same fit."""
+    Xw, r0 = base if base is not None else _whitened_base(prob, f0)
+    A = np.hstack([Xw, prob.whiten(S)])
     yw = prob.wcache("y", lambda: prob.y)
-    coef, *_ = np.linalg.lstsq(A, yw, rcond=None)
-    r = yw - A @ coef
+    coef, _, rank, _ = np.linalg.lstsq(A, yw, rcond=None)   # rank: singular values > max(m, n) eps s_max, as
+    r = yw - A @ coef                                           # numpy.linalg.matrix_rank counts them
     chi2 = float(r @ r)
-    extra = int(np.linalg.matrix_rank(A)) - int(np.linalg.matrix_rank(A[:, :f0.X.shape[1]]))
+    extra = int(rank) - r0
     return chi2, chi2 + (f0.k + extra) * math.log(prob.n)
+
+
+def _whitened_base(prob: Problem, f0: Fit):
+    """The whitened design of ``f0`` and its rank (what :func:`_bic_with` needs of the fit it extends)."""
+    Xw = prob.whiten(f0.X)
+    return Xw, int(np.linalg.matrix_rank(Xw))
 
 
 def generic_rivals(prob: Problem, final: Fit) -> list[dict]:
@@ -415,19 +423,20 @@ def generic_rivals(prob: Problem, final: Fit) -> list[dict]:
     for k in final.terms:
         rest = [t for t in final.terms if t != k]
         f0 = fit(prob, rest, taus={t: v for t, v in final.taus.items() if t in rest}) if rest else fit(prob, [])
+        b0 = _whitened_base(prob, f0)
         cands = [("accelerometer biases drifting in time (Legendre degree 1-2; a generic basis, no physics named)",
-                  *_bic_with(prob, f0, drift))]
+                  *_bic_with(prob, f0, drift, b0))]
         for j, S in steps:
-            chi2, bic = _bic_with(prob, f0, S)
+            chi2, bic = _bic_with(prob, f0, S, b0)
             cands.append((f"accelerometer biases stepping between static segments {j - 1} and {j} (a generic "
                           "basis, no physics named)", chi2, bic + math.log(prob.n)))   # + the step time
         for j, S in steps:
             for i in range(3):   # one axis stepping: a bias jump of a single accelerometer
-                chi2, bic = _bic_with(prob, f0, S[:, i:i + 1])
+                chi2, bic = _bic_with(prob, f0, S[:, i:i + 1], b0)
                 cands.append((f"accelerometer {AXES[i]} bias stepping between static segments {j - 1} and {j} (a "
                               "generic basis, no physics named)", chi2, bic + math.log(prob.n)))
         for i, per, S in norm_periodic_columns(prob):
-            chi2, bic = _bic_with(prob, f0, S)
+            chi2, bic = _bic_with(prob, f0, S, b0)
             cands.append((f"accelerometer {AXES[i]} bias oscillating with period span/{per:g} (a generic basis, no "
                           "physics named)", chi2, bic + math.log(prob.n)))              # + the period
         name, chi2, bic = min(cands, key=lambda c: c[2])
