@@ -132,14 +132,24 @@ def is_shape_parameter(key: str) -> bool:
     return key.endswith("tau_s") or key == "T_ref_degC"
 
 
+_ZEROS: dict = {}
+
+
 def zero_params(eid):
-    """The registry defaults of effect ``eid`` with every size parameter set to zero (shape parameters kept)."""
-    p = copy.deepcopy(effects.REGISTRY[eid].defaults)
-    for k, v in p.items():
-        if is_shape_parameter(k):
-            continue
-        p[k] = (np.zeros_like(np.asarray(v, float))).tolist() if np.ndim(v) else 0.0
-    return p
+    """The registry defaults of effect ``eid`` with every size parameter set to zero (shape parameters kept).
+    A new dict each call (built once per effect, copied: the library asks for thousands)."""
+    if eid not in _ZEROS:
+        p = copy.deepcopy(effects.REGISTRY[eid].defaults)
+        for k, v in p.items():
+            if is_shape_parameter(k):
+                continue
+            p[k] = (np.zeros_like(np.asarray(v, float))).tolist() if np.ndim(v) else 0.0
+        _ZEROS[eid] = p
+    return {k: _copy_nested(v) for k, v in _ZEROS[eid].items()}
+
+
+def _copy_nested(v):
+    return [_copy_nested(x) for x in v] if isinstance(v, list) else copy.copy(v)
 
 
 #: (effect id, sensor, registry key(s), parameter layout)
