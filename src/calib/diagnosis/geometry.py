@@ -130,12 +130,14 @@ class Geometry:
         return [w for w in self.windows if w.kind == "rotation"]
 
 
-def _rodrigues_T(axis, theta, v):
-    """R_u(theta)^T v for per-sample angles theta (n,) and a fixed vector v (3,): rotation by -theta."""
+def _rodrigues_T(axis, theta, v, cs=None):
+    """R_u(theta)^T v for per-sample angles theta (n,) and a fixed vector v (3,): rotation by -theta.
+    ``cs``: ``(cos theta, sin theta)`` as (n, 1) columns when the caller already has them."""
     u = np.asarray(axis, float)
     v = np.asarray(v, float)
-    c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
-    return v[None, :] * c - np.cross(u, v)[None, :] * s + (u @ v) * u[None, :] * (1.0 - c)
+    c, s = cs if cs is not None else (np.cos(theta)[:, None], np.sin(theta)[:, None])
+    uxv = np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])  # u x v
+    return v[None, :] * c - uxv[None, :] * s + (u @ v) * u[None, :] * (1.0 - c)
 
 
 def _stitch_angle(a_deg, seg_idx):
@@ -436,8 +438,9 @@ def window_inputs(geom: Geometry, w: Window, delta_s: float = 0.0, latitude_deg=
         thm = w.theta_mid[k]
         rate = np.full(n, math.radians(w.rate_deg_s))
         acc = np.zeros(n)
-    f = _rodrigues_T(u, thm, C0.T @ ga)
-    om = _rodrigues_T(u, thm, C0.T @ wg) + np.outer(rate, u) / earth.DEG_PER_H * gyro_unit
+    cs = (np.cos(thm)[:, None], np.sin(thm)[:, None])
+    f = _rodrigues_T(u, thm, C0.T @ ga, cs)
+    om = _rodrigues_T(u, thm, C0.T @ wg, cs) + np.outer(rate, u) / earth.DEG_PER_H * gyro_unit
     return f, om, np.outer(rate, u), np.outer(acc, u)
 
 
