@@ -78,6 +78,21 @@ def test_geometry_reuse_gives_the_reports_of_a_fresh_set_up(tmp_path):
     assert json.dumps(reused, sort_keys=True) == json.dumps(fresh, sort_keys=True)   # NaN entries compare equal
 
 
+def test_skipping_absent_bounds_changes_nothing_else(tmp_path):
+    """The proof's per-seed runs skip the upper bounds of absent terms: every other part of the report is the
+    same as with them."""
+    from calib.diagnosis import diagnose_dataset
+
+    fs = FastSession({**SHORT, "effects": {"accel_cubic_nonlinearity": {"k3_ug_per_g3": [60.0, -40.0, 30.0]}},
+                      "conceal": True}, tmp_path, physical=True)
+    full, _ = diagnose_dataset(fs.dataset(21), None, {"figures": False}, path="p")
+    lean, _ = diagnose_dataset(fs.dataset(21), None, {"figures": False, "absent_bounds": False}, path="p")
+    assert full["absent"] and lean["absent"] is None
+    for r in (full, lean):
+        r.pop("absent"), r.pop("elapsed_s"), r.get("settings", {}).pop("absent_bounds", None)
+    assert json.dumps(lean, sort_keys=True) == json.dumps(full, sort_keys=True)
+
+
 def test_score_closed_cases():
     truth = {"effects": {"accel_cubic_nonlinearity": {"k3_ug_per_g3": [20.0, -15.0, 10.0]}}}
     found = {"effect": "accel_cubic_nonlinearity", "sensor": "accel", "key": "accel_cubic_nonlinearity/accel",

@@ -450,7 +450,7 @@ def analyse(prob: Problem) -> dict:
         "selection": {"steps": steps, "last_step_candidates": [{k: v for k, v in r.items() if k != "fit"}
                                                                for r in table]},
         "found": found,
-        "absent": _absent(prob, final, table),
+        "absent": _absent(prob, final, table) if st.get("absent_bounds", True) else None,
         "untestable": _untestable(prob),
         "base_parameters": moved,
         "residual_rms": rms,

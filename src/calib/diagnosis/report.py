@@ -126,7 +126,9 @@ def report_markdown(rep: dict) -> str:
         L.append("")
     L.append("## Tested and absent (95 % upper bounds)")
     L.append("")
-    for a in rep["absent"]:
+    if rep["absent"] is None:
+        L.append("- not computed (setting absent_bounds: false)")
+    for a in rep["absent"] or []:
         b = "; ".join(f"|{x['name']}| < {fmt(x['upper_bound_abs'], 3)} {x['unit']}" for x in a["upper_bound_95"])
         L.append(f"- {a['key']}: {b}")
     L.append("")

@@ -232,7 +232,7 @@ def _proof_worker(args):
             e2e = score(rep0, fsn.truth_path, kind)
         else:
             e2e = None
-        st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False}
+        st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False, "absent_bounds": False}   # not scored
         fig = Path(out_dir) / "figures" / f"residuals_{name}.png" if out_dir and scale == 1.0 else None
         rows, _ = _seed_rows(fsn, name, kind, seed_list, st, fig)
     fisher_bounds = None
@@ -280,7 +280,7 @@ def _power_worker(args):
     ``base_of``); each scale's library is built at its own first seed, as in :func:`_proof_worker`."""
     name, seed_list, settings, scales, effs, base, injection = args
     kind = PROOF_SESSIONS[name][0]
-    st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False}
+    st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False, "absent_bounds": False}   # not scored
     out, prev, prob_prev = [], None, None
     with tempfile.TemporaryDirectory(prefix="calib-power-") as tmp:
         for sc, eff in zip(scales, effs):
@@ -463,7 +463,9 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
            "power": power,
            "method": ("per session: one full simulator recording diagnosed end to end from its file; the seeds: "
                       "the simulator's clean signal for the session + the simulator's own noise and pulse-counter "
-                      "kernel per seed (bit-identical to its files), diagnosed blind; truth read only by score()"),
+                      "kernel per seed (bit-identical to its files), diagnosed blind; truth read only by score(); the "
+                      "per-seed reports skip the upper bounds of absent terms (not scored; nothing else depends on "
+                      "them), the end-to-end run computes them"),
            "acceptance": _acceptance(summary)}
     # scientific files hold no wall times (reruns are identical); those go to timings.json
     write_json_atomic(out, out_dir / "proof.json")
