@@ -159,8 +159,9 @@ class ProofBase:
         return ds
 
     def diagnose(self, y: np.ndarray, label: str):
-        rep, _ = diagnose_dataset(self.dataset(y), None, self.settings, path=f"{self.name} {label}",
-                                  library_from=None)
+        # the upper bounds of absent terms are read from the baseline only (baseline_value), not from a repetition
+        rep, _ = diagnose_dataset(self.dataset(y), None, {**self.settings, "absent_bounds": False},
+                                  path=f"{self.name} {label}", library_from=None)
         return rep
 
 
