@@ -599,3 +599,42 @@ def test_gyro_sees_the_transitions(quiet):
         worst = max(worst, err)
     # 1 count of quantisation is 1.2e-10 rad; allow float round-off over ~1,000-sample transitions
     assert worst < 1e-8
+
+
+# ---- in-memory sessions (the z-score study) ----------------------------------------------------------
+
+@pytest.mark.parametrize("effect,chunk", [(None, simulate.NOISE_BLOCK), (None, 7_777),
+                                          ("temperature_sensitivity", simulate.NOISE_BLOCK),
+                                          ("bias_drift", 50_000)])
+def test_static_counts_dataset_is_the_loaded_file(tmp_path, effect, chunk):
+    """``static_counts_dataset`` is what ``recording.load`` returns for the file of ``simulate_static_session``
+    (counts mode): the same samples, dtypes, variables and attributes, for any generation chunk."""
+    cfg = {"site": SITE, "mode": "counts", "duration_h": 0.25, "sample_rate_hz": FS,  # crosses a noise block
+           "attitude_deg": {"pitch": 2.0, "roll": -3.0, "yaw": 40.0}, "effects": {effect: {}} if effect else {}}
+    p = simulate.simulate_static_session(cfg, 11, tmp_path / "s.nc")
+    a, b = simulate.static_counts_dataset(cfg, 11, chunk_samples=chunk, path=p), recording.load(p)
+    assert sorted(a.variables) == sorted(b.variables)
+    for v in a.variables:
+        assert a[v].dtype == b[v].dtype and a[v].dims == b[v].dims and a[v].attrs == b[v].attrs, v
+        np.testing.assert_array_equal(a[v].values, b[v].values, err_msg=v)
+    assert set(a.attrs) == set(b.attrs)
+    for k in a.attrs:
+        assert type(a.attrs[k]) is type(b.attrs[k]) and np.array_equal(a.attrs[k], b.attrs[k]), k
+    with pytest.raises(simulate.SimConfigError):
+        simulate.static_counts_dataset({**cfg, "mode": "physical"}, 11)
+
+
+def test_calibration_session_dataset_for_another_seed(noisy):
+    """The clean increments and the seed-independent channels of one simulator serve every noise seed: the
+    dataset for seed 7 from a simulator of seed 3 has the samples of the file written for seed 7."""
+    _, ds, _ = noisy
+    sim = simulate.build_calibration_simulator(SHORT, 3)
+    mem = simulate.calibration_session_dataset(sim, 7, sim.clean_increments(),
+                                               simulate.calibration_session_channels(sim))
+    for v in ("accel", "gyro", "temperature", "segment_index", "table_angle", "time", "rotation_rate",
+              "nominal_attitude"):
+        assert mem[v].dtype == ds[v].dtype, v
+        np.testing.assert_array_equal(mem[v].values, ds[v].values, err_msg=v)
+    own = simulate.calibration_session_dataset(sim)  # the simulator's own seed, everything computed here
+    assert not np.array_equal(own["accel"].values, ds["accel"].values)
+    np.testing.assert_array_equal(own["table_angle"].values, ds["table_angle"].values)

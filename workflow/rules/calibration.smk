@@ -49,6 +49,7 @@ rule calibration_z:
         check=sub("static_check"),
         seed=session_seed(config["seeds"]["data"], "calibration_z"),
         workdir=lambda w, output: os.path.join(os.path.dirname(output.table), "tmp_zscores"),
+    threads: 2  # seeds in forked workers; the result does not depend on their number
     log:
         f"{R}/logs/calibration_z.log",
     benchmark:

@@ -7,4 +7,4 @@ with runlog.to_file(snakemake.log[0]):
     o = snakemake.output
     calibration_study.run_z_seeds(p.session, p.site, p.calibration, p.calibration["z_seeds"], p.seed, o.table, o.fig,
                                   o.metrics, p.workdir, check=p.check,
-                                  noise_record=snakemake.input.get("noise_record"))
+                                  noise_record=snakemake.input.get("noise_record"), workers=snakemake.threads)

@@ -45,6 +45,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from scipy import optimize, stats
 
@@ -77,12 +78,88 @@ def edf_white(n_phase, m):
     return np.maximum(e, 1.0)
 
 
+@numba.njit(cache=True)
+def _second_difference_sums(theta, ms, sumsq, nterms):  # pragma: no cover - compiled
+    """sumsq[i, c] = sum_k (theta[k+2m, c] - 2 theta[k+m, c] + theta[k, c])^2, k = 0..N-2m-1, m = ms[i], summed in
+    k order per column (the order of ``np.einsum('ij,ij->j', d, d)`` on an (N-2m, ncols >= 2) array). Three
+    columns at a time in local accumulators (independent sums: the same order per column)."""
+    n_phase, k = theta.shape
+    for i in range(ms.shape[0]):
+        m = ms[i]
+        nt = n_phase - 2 * m
+        if nt < 1:
+            continue
+        a = theta[2 * m:2 * m + nt]  # views: the loops index from 0 (no negative-index handling)
+        b = theta[m:m + nt]
+        e = theta[:nt]
+        c0 = 0
+        while c0 < k:
+            w = min(3, k - c0)
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            if w == 3:
+                for t in range(nt):
+                    d0 = a[t, c0] - 2.0 * b[t, c0] + e[t, c0]
+                    d1 = a[t, c0 + 1] - 2.0 * b[t, c0 + 1] + e[t, c0 + 1]
+                    d2 = a[t, c0 + 2] - 2.0 * b[t, c0 + 2] + e[t, c0 + 2]
+                    s0 += d0 * d0
+                    s1 += d1 * d1
+                    s2 += d2 * d2
+            elif w == 2:
+                for t in range(nt):
+                    d0 = a[t, c0] - 2.0 * b[t, c0] + e[t, c0]
+                    d1 = a[t, c0 + 1] - 2.0 * b[t, c0 + 1] + e[t, c0 + 1]
+                    s0 += d0 * d0
+                    s1 += d1 * d1
+            else:
+                for t in range(nt):
+                    d0 = a[t, c0] - 2.0 * b[t, c0] + e[t, c0]
+                    s0 += d0 * d0
+            sumsq[i, c0] = s0
+            if w > 1:
+                sumsq[i, c0 + 1] = s1
+            if w > 2:
+                sumsq[i, c0 + 2] = s2
+            c0 += w
+        nterms[i] = nt
+
+
+@numba.njit(cache=True)
+def _column_means(y):  # pragma: no cover - compiled
+    """Column means of a C-ordered (n, k) array summed row by row (numpy's ``y.mean(axis=0)`` for k >= 2)."""
+    n, k = y.shape
+    s = np.zeros(k)
+    for i in range(n):
+        for j in range(k):
+            s[j] += y[i, j]
+    return s / n
+
+
+@numba.njit(cache=True)
+def _phase(y, mu, fs):  # pragma: no cover - compiled
+    """theta[0] = 0, theta[i + 1] = theta[i] + (y[i] - mu) / fs: ``np.cumsum((y - mu) / fs, axis=0)``."""
+    n, k = y.shape
+    theta = np.zeros((n + 1, k))
+    for j in range(k):
+        theta[1, j] = (y[0, j] - mu[j]) / fs
+    for i in range(1, n):
+        for j in range(k):
+            theta[i + 1, j] = theta[i, j] + (y[i, j] - mu[j]) / fs
+    return theta
+
+
 def avar_sums(y, fs: float, ms):
     """Raw ingredients of eq. (2) for one contiguous record, for pooling over several records.
 
     ``y`` (n,) or (n, k) rate samples. Returns ``(sumsq (len(ms), k), nterms (len(ms),))`` where
     ``sumsq`` is the sum of squared second differences of the phase [unit^2 s^2] and ``nterms`` = N - 2m
     (0 where the record is too short for that m).
+
+    Several columns (k >= 2): compiled loops without temporaries that do numpy's operations in numpy's order
+    (``y.mean(axis=0)`` of a C-ordered array and ``einsum('ij,ij->j')`` sum row by row for k >= 2), so the
+    numbers are the same to the last bit (tests/signal/test_allan.py). One column: numpy (its contiguous sums
+    are pairwise / vectorised, in another order).
     """
     y = np.asarray(y, dtype=np.float64)
     if y.ndim == 1:
@@ -90,14 +167,20 @@ def avar_sums(y, fs: float, ms):
     if not np.all(np.isfinite(y)):
         raise AllanError("rate samples contain NaN or Inf")
     n = y.shape[0]
+    ms = np.asarray(ms, dtype=np.int64)
+    sumsq = np.zeros((len(ms), y.shape[1]))
+    nterms = np.zeros(len(ms), dtype=np.int64)
+    if y.shape[1] >= 2 and n >= 1:
+        # remove the mean: AVAR is blind to a constant and the cumulative sum stays small (no cancellation)
+        mu = _column_means(y) if y.flags.c_contiguous else y.mean(axis=0)
+        theta = _phase(y, np.ascontiguousarray(mu, dtype=np.float64), float(fs))
+        _second_difference_sums(theta, ms, sumsq, nterms)
+        return sumsq, nterms
     # remove the mean: AVAR is blind to a constant and the cumulative sum stays small (no cancellation)
     yc = y - y.mean(axis=0)
     theta = np.zeros((n + 1, y.shape[1]))
     np.cumsum(yc / fs, axis=0, out=theta[1:])
     N = n + 1
-    ms = np.asarray(ms, dtype=np.int64)
-    sumsq = np.zeros((len(ms), y.shape[1]))
-    nterms = np.zeros(len(ms), dtype=np.int64)
     for i, m in enumerate(ms):
         k = N - 2 * m
         if k < 1:

@@ -63,12 +63,13 @@ from pathlib import Path
 
 import numba
 import numpy as np
+import xarray as xr
 
 from calib.core import earth
 from calib.sim import effects
 from calib.io import recording
 from calib.io.atomic import write_json
-from calib.io.netcdf import provenance
+from calib.io.netcdf import CF_VERSION, provenance
 from calib.core.earth import STANDARD_GRAVITY
 from calib.core.triad import OFFDIAG, PARAM_NAMES, TriadModel, liu2021_model
 from calib.sim.trajectory import (Trajectory, calibration_plan, plan_duration, recorded_segments,
@@ -549,6 +550,44 @@ def _recording_attrs(sim_cfg: dict, eff: dict, quantize: bool, extra: dict | Non
     return attrs
 
 
+def calibration_session_channels(sim: CalibrationSimulator) -> dict:
+    """The seed-independent parts of a calibration-session recording: ``segment_index``, ``table_angle``, the
+    segment table and the global attributes (:func:`calibration_session_dataset` takes them precomputed when many
+    noise seeds of one session are generated)."""
+    n, fs = sim.n_samples, sim.sample_rate_hz
+    return {"segment_index": sample_segment_index(sim.plan, n, fs),
+            "table_angle": sim.trajectory.kinematics(np.arange(n) / fs,
+                                                     math.radians(sim.latitude_deg)).table_angle_deg,
+            "segments": segment_table(sim.plan),
+            "attrs": _recording_attrs(sim.cfg, sim.effects, sim.noise["quantize"], {"session": "calibration"})}
+
+
+def calibration_session_dataset(sim: CalibrationSimulator, seed: int | None = None, clean: np.ndarray | None = None,
+                                channels: dict | None = None):
+    """The in-memory recording (``xarray.Dataset``) of the session for noise ``seed`` (default: the simulator's
+    own): exactly the dataset :func:`simulate_calibration_session` writes. ``clean``
+    (:meth:`CalibrationSimulator.clean_increments`) and ``channels`` (:func:`calibration_session_channels`):
+    seed-independent parts computed once for many seeds of the same session."""
+    n, fs = sim.n_samples, sim.sample_rate_hz
+    quant = sim.noise["quantize"]
+    dtype = np.int32 if quant else np.float64
+    acc = np.empty((n, 3), dtype=dtype)
+    gyr = np.empty((n, 3), dtype=dtype)
+    temp = np.empty(n)
+    eng = sim.engine(seed, clean)
+    for i0 in range(0, n, NOISE_BLOCK):
+        ch = eng.next(min(NOISE_BLOCK, n - i0))
+        acc[i0:i0 + len(ch.accel)] = ch.accel
+        gyr[i0:i0 + len(ch.gyro)] = ch.gyro
+        temp[i0:i0 + len(ch.temperature)] = ch.temperature
+    fixed = calibration_session_channels(sim) if channels is None else channels
+    return recording.make_dataset(
+        acc, gyr, sample_rate_hz=fs, latitude_deg=sim.latitude_deg, height_m=sim.height_m,
+        accel_units="count", gyro_units="count", accel_kind="increment", gyro_kind="increment",
+        source="synthetic", sensor=SENSOR_NAME, temperature=temp, segment_index=fixed["segment_index"],
+        segments=fixed["segments"], table_angle=fixed["table_angle"], extra_attrs=dict(fixed["attrs"]))
+
+
 def simulate_calibration_session(cfg: dict, seed: int, out_path, truth_path=None, prov=None) -> Path:
     """Simulate the Liu 2021 calibration session and write it as a ``calib-recording-1`` file.
 
@@ -560,32 +599,18 @@ def simulate_calibration_session(cfg: dict, seed: int, out_path, truth_path=None
     """
     t_wall = _time.perf_counter()
     sim = build_calibration_simulator(cfg, seed)
-    n, fs = sim.n_samples, sim.sample_rate_hz
-    quant = sim.noise["quantize"]
-    dtype = np.int32 if quant else np.float64
-    acc = np.empty((n, 3), dtype=dtype)
-    gyr = np.empty((n, 3), dtype=dtype)
-    temp = np.empty(n)
-    eng = sim.engine()
-    for i0 in range(0, n, NOISE_BLOCK):
-        ch = eng.next(min(NOISE_BLOCK, n - i0))
-        acc[i0:i0 + len(ch.accel)] = ch.accel
-        gyr[i0:i0 + len(ch.gyro)] = ch.gyro
-        temp[i0:i0 + len(ch.temperature)] = ch.temperature
-    seg_idx = sample_segment_index(sim.plan, n, fs)
-    angle = sim.trajectory.kinematics(np.arange(n) / fs, math.radians(sim.latitude_deg)).table_angle_deg
-    attrs = _recording_attrs(sim.cfg, sim.effects, quant, {"session": "calibration"})
-    ds = recording.make_dataset(
-        acc, gyr, sample_rate_hz=fs, latitude_deg=sim.latitude_deg, height_m=sim.height_m,
-        accel_units="count", gyro_units="count", accel_kind="increment", gyro_kind="increment",
-        source="synthetic", sensor=SENSOR_NAME, temperature=temp, segment_index=seg_idx,
-        segments=segment_table(sim.plan), table_angle=angle, extra_attrs=attrs)
+    ds = calibration_session_dataset(sim)
     if prov is None:
         prov = provenance("simulate_calibration_session", cfg, seed)
     out = recording.write(ds, out_path, prov)
     if truth_path is not None:
         write_json(_truth_calibration(sim, time_s=_time.perf_counter() - t_wall), truth_path)
     return out
+
+
+def calibration_truth(sim: CalibrationSimulator) -> dict:
+    """The truth sidecar of :func:`simulate_calibration_session` as a dict (its ``generation_time_s`` set to 0)."""
+    return _truth_calibration(sim, time_s=0.0)
 
 
 def _noise_json(noise: dict, accel: TriadModel, gyro: TriadModel, dt: float) -> dict:
@@ -754,7 +779,9 @@ def _static_physical(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cb
     }
 
 
-def _static_counts(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cbn, att) -> dict:
+def _static_counts_unit(c, seed, lat, h, fs, cbn):
+    """The calibration unit at rest of a counts-mode static session: (engine, accel, gyro, noise, effects,
+    temperature profile, simulated site)."""
     where = "static_session"
     acc, gyr, noise, eff, temp = _unit_cfg(c, where)
     site = effects.apply_truth(effects.SiteTruth(lat, h, float(earth.normal_gravity(math.radians(lat), h))), eff)
@@ -768,9 +795,18 @@ def _static_counts(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cbn,
         return np.broadcast_to(f_b, (k, 3)), np.broadcast_to(w_ib, (k, 3)), z, z
 
     eng = CountsEngine(acc, gyr, noise, eff, site, fs, seed, inputs, temp, n_nodes=1, constant_inputs=True)
+    return eng, acc, gyr, noise, eff, temp, site
+
+
+def _static_counts_attrs(c, eff, quant, att) -> dict:
+    return _recording_attrs(c, eff, quant, {"session": "static", "attitude_pitch_deg": att["pitch"],
+                                            "attitude_roll_deg": att["roll"], "attitude_yaw_deg": att["yaw"]})
+
+
+def _static_counts(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cbn, att) -> dict:
+    eng, acc, gyr, noise, eff, temp, site = _static_counts_unit(c, seed, lat, h, fs, cbn)
     quant = noise["quantize"]
-    attrs = _recording_attrs(c, eff, quant, {"session": "static", "attitude_pitch_deg": att["pitch"],
-                                             "attitude_roll_deg": att["roll"], "attitude_yaw_deg": att["yaw"]})
+    attrs = _static_counts_attrs(c, eff, quant, att)
     with recording.LongRecordingWriter(out_path, n, fs, latitude_deg=lat, height_m=h, accel_units="count",
                                        gyro_units="count", accel_kind="increment", gyro_kind="increment",
                                        dtype="i4" if quant else "f8", source="synthetic", sensor=SENSOR_NAME,
@@ -789,3 +825,52 @@ def _static_counts(c, seed, out_path, prov, progress, chunk, lat, h, fs, n, cbn,
         "accel": _model_json(acc), "gyro": _model_json(gyr),
         "noise": _noise_json(noise, acc, gyr, 1.0 / fs), "effects": eff, "temperature": temp, "config": c,
     }
+
+
+def static_counts_dataset(cfg: dict, seed: int, chunk_samples: int = NOISE_BLOCK, path: str | None = None):
+    """The counts-mode static session of ``(cfg, seed)`` in memory: the ``xarray.Dataset`` that
+    ``recording.load`` returns for the file :func:`simulate_static_session` writes (same samples, dtypes, variable
+    and global attributes; ``temperature`` float32 as stored), without the file and its provenance attributes.
+    ``path``: the ``_path`` attribute a loaded file carries (default: none). For the many short records of a
+    study (the whole record is held in memory; generated by chunks of ``chunk_samples``, which keeps the
+    temporaries small and changes no sample)."""
+    c = _merge(cfg, STATIC_COUNTS_DEFAULTS, "static_session")
+    if c.get("mode", "counts") != "counts":
+        raise SimConfigError(f"static_session.mode: {c['mode']!r}; the in-memory static record is counts only")
+    lat, h = _site(c, "static_session")
+    fs = float(c["sample_rate_hz"])
+    dur_h = float(c["duration_h"])
+    if not (fs > 0 and math.isfinite(fs)):
+        raise SimConfigError(f"static_session.sample_rate_hz: {fs} is not a positive rate")
+    if not (dur_h > 0 and math.isfinite(dur_h)):
+        raise SimConfigError(f"static_session.duration_h: {dur_h} is not a positive duration")
+    n = int(round(dur_h * 3600.0 * fs))
+    if n < 2:
+        raise SimConfigError(f"static_session.duration_h: {dur_h} h at {fs} Hz gives fewer than 2 samples")
+    cbn, att = _attitude(c, "static_session")
+    chunk = max(1, int(chunk_samples))  # the samples do not depend on it (module docstring), only the memory does
+    eng, _, _, noise, eff, _, _ = _static_counts_unit(c, seed, lat, h, fs, cbn)
+    quant = noise["quantize"]
+    dtype = np.int32 if quant else np.float64
+    acc = np.empty((n, 3), dtype=dtype)
+    gyr = np.empty((n, 3), dtype=dtype)
+    temp = np.empty(n, dtype=np.float32)
+    for i0 in range(0, n, chunk):
+        ch = eng.next(min(chunk, n - i0))
+        k = len(ch.accel)
+        acc[i0:i0 + k] = ch.accel
+        gyr[i0:i0 + k] = ch.gyro
+        temp[i0:i0 + k] = ch.temperature
+    attrs = {"Conventions": f"{CF_VERSION} {recording.CONVENTIONS}", "latitude_deg": lat, "height_m": h,
+             "sample_rate_hz": fs, "t0_s": 0.0, "source": "synthetic", "sensor": SENSOR_NAME}
+    attrs.update(_static_counts_attrs(c, eff, quant, att))
+    attrs = {k: np.float64(v) if isinstance(v, float) else v for k, v in attrs.items()}  # as netCDF4 reads them
+    if path is not None:
+        attrs["_path"] = str(path)
+    data = {"accel": (("time", "axis"), acc, {"sample_kind": "increment", "units": "count",
+                                              "long_name": "accelerometer triad output"}),
+            "gyro": (("time", "axis"), gyr, {"sample_kind": "increment", "units": "count",
+                                             "long_name": "gyroscope triad output"}),
+            "temperature": (("time",), temp, {"units": "degC", "long_name": "unit temperature"})}
+    coords = {"axis": list(recording.AXES), "time": 0.0 + np.arange(n) / fs}
+    return xr.Dataset(data, coords=coords, attrs=attrs)

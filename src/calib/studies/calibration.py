@@ -22,12 +22,13 @@ from calib.calibration import objectives as ob
 from calib.signal import noisecov
 from calib.io import recording
 from calib.signal import segments
-from calib.io.netcdf import write_netcdf
+from calib.io.netcdf import CF_VERSION, write_netcdf
 from calib.core.progress import Progress
 from calib.core.triad import PARAM_NAMES, TriadModel
 from calib.studies import stages
 from calib.core import seeds
-from calib.io.atomic import write_text
+from calib.io.atomic import json_default, strict_json, write_text
+from calib.sim import simulator as simulate
 
 #: how the DE variants of Liu 2021 map to the figures
 FIGURE_OF = {"de_rand1": 2, "de_current_to_best1": 3, "de_integration": 4, "ide": 5}
@@ -493,8 +494,90 @@ def z_noise_mode(ccfg: dict) -> str:
     return str(ccfg.get("z_noise_record", "per_seed"))
 
 
+#: the state of one z-score study, set before the seeds run (and inherited by the forked workers)
+_Z: dict = {}
+
+
+def _as_loaded(ds: xr.Dataset, path) -> xr.Dataset:
+    """An in-memory recording as ``recording.load`` returns it once written to ``path``: the ``Conventions``
+    attribute, numbers among the global attributes as numpy floats, ``_path``. (Only the provenance attributes
+    of the written file are missing; samples, variables and their attributes are the same: tests/studies.)"""
+    attrs = {k: np.float64(v) if isinstance(v, float) else v for k, v in ds.attrs.items() if k != "conventions"}
+    attrs["Conventions"] = f"{CF_VERSION} {recording.CONVENTIONS}"
+    attrs["_path"] = str(path)
+    ds.attrs = attrs
+    return ds
+
+
+def _z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files: bool) -> dict:
+    """Everything the seeds of the z-score study share. ``files``: every seed writes its recordings to
+    ``workdir`` and reads them back (the reference path); otherwise the recordings stay in memory and what does
+    not depend on the noise seed (the clean increments of the calibration path, its table angle and segment table,
+    the truth) is computed once: the sensor models, effects and site of ``build_calibration_simulator`` do not
+    depend on the seed, only the noise does."""
+    ctx = {"session": session, "site": site, "ccfg": ccfg, "seed0": seed0, "check": check, "mode": mode,
+           "shared": shared, "workdir": Path(workdir), "files": bool(files)}
+    if not files:
+        cfg = stages.calibration_cfg(session, site)
+        sim = simulate.build_calibration_simulator(cfg, seeds.child_seed(seed0, "session", 0))
+        # the truth sidecar as read back from its JSON file (floats round-trip exactly through JSON)
+        truth = json.loads(json.dumps(strict_json(simulate.calibration_truth(sim)), default=json_default))
+        ctx.update(sim=sim, clean=sim.clean_increments(), channels=simulate.calibration_session_channels(sim),
+                   truth=truth,
+                   static_cfg=stages.static_check_cfg(check, session, site) if mode == "per_seed" else None)
+    return ctx
+
+
+def _z_seed(k: int):
+    """Seed ``k`` of the z-score study (state in :data:`_Z`): the z-scores of the default calibration with the
+    segment-only sigma and (noise record) with the noise model, and the parameter names."""
+    c = _Z
+    seed0, ccfg, workdir, mode = c["seed0"], c["ccfg"], c["workdir"], c["mode"]
+    rec, tru = workdir / f"s{k}.nc", workdir / f"s{k}.truth.json"
+    seed_k = seeds.child_seed(seed0, "session", k)
+    if c["files"]:
+        stages.simulate_calibration(c["session"], c["site"], seed_k, rec, tru)
+        truth = json.loads(tru.read_text())
+        inp = segments.extract(recording.load(rec))
+        rec.unlink()
+        tru.unlink()
+    else:
+        truth = c["truth"]
+        inp = segments.extract(_as_loaded(simulate.calibration_session_dataset(c["sim"], seed_k, c["clean"],
+                                                                               c["channels"]), rec))
+    noise = None
+    if mode == "per_seed":
+        lrec, ltru = workdir / f"l{k}.nc", workdir / f"l{k}.truth.json"
+        lseed = seeds.child_seed(seed0, "noise_record", k)
+        if c["files"]:
+            stages.simulate_static_check(c["check"], c["session"], c["site"], lseed, lrec, ltru)
+            noise = noise_models(inp, recording.load(lrec), ccfg)
+            lrec.unlink()
+            ltru.unlink()
+        else:
+            noise = noise_models(inp, simulate.static_counts_dataset(c["static_cfg"], lseed, path=lrec), ccfg)
+    elif mode == "shared":
+        noise = noise_models(inp, c["shared"], ccfg)
+    ta = truth_vector(truth, "accel")
+    Mt, bt = ob.Form("paper12").KE_b(ta)
+    L, _ = ob.lower_triangular_gauge(Mt)
+    t9 = ob.Form("tri9").from_KE_b(L, bt)
+    tg = None
+    out, names = {}, {}
+    for key, nz in (("segment", None), ("with", noise)):
+        if key == "with" and noise is None:
+            continue
+        d = default_calibration(inp, ccfg, seeds.child_seed(seed0, "calibration", k), noise=nz)
+        g = d["gyro"]
+        tg = _match(g, truth_vector(truth, "gyro")) if tg is None else tg
+        out[key] = {"accel": (d["accel"].x - t9) / d["accel"].se, "gyro": (g.x - tg) / g.se}
+        names = {"accel": d["accel"].names, "gyro": g.names}
+    return out, names
+
+
 def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int, out_csv, fig, metrics_path,
-                workdir, log=print, check: dict | None = None, noise_record=None):
+                workdir, log=print, check: dict | None = None, noise_record=None, workers: int = 1,
+                files: bool = False):
     """The default calibration over ``n_seeds`` simulated sessions (the data stage's generator, full noise
     model): z = (estimate - truth) / standard error of every identified parameter. Accelerometers: the
     identified 9-parameter norm form against the truth in the same gauge; gyros: eq. 25 components.
@@ -503,7 +586,12 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
     simulates one per seed from the ``check`` config, i.e. the static_check settings, seed ``child_seed(seed0, "noise_record", k)``
     k``; 'shared' uses ``noise_record``) from the noise model with the slow part; the z-scores of the
     segment-only sigma (today's behaviour without a record) are reported next to them for the same seeds
-    (columns ``*_segment_sigma``). Without a record only the segment-only z-scores (``mean_z``, ``std_z``)."""
+    (columns ``*_segment_sigma``). Without a record only the segment-only z-scores (``mean_z``, ``std_z``).
+
+    ``workers`` > 1: the seeds run in that many forked processes; every seed derives its own seeds
+    (``seeds.child_seed``), so the results do not depend on the number of workers. ``files``: every seed's
+    recordings go through files in ``workdir`` (written, read back, deleted: the reference path, slower); by
+    default they stay in memory (the same datasets, tests/studies/test_calibration_z.py)."""
 
     mode = z_noise_mode(ccfg)
     if mode == "per_seed" and check is None:
@@ -518,37 +606,29 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
     z = {"with": {"accel": [], "gyro": []}, "segment": {"accel": [], "gyro": []}}
     names = {}
     bar = Progress(n_seeds, "noise seeds")
-    for k in range(n_seeds):
-        rec, tru = workdir / f"s{k}.nc", workdir / f"s{k}.truth.json"
-        stages.simulate_calibration(session, site, seeds.child_seed(seed0, "session", k), rec, tru)
-        truth = json.loads(tru.read_text())
-        inp = segments.extract(recording.load(rec))
-        rec.unlink()
-        tru.unlink()
-        noise = None
-        if mode == "per_seed":
-            lrec, ltru = workdir / f"l{k}.nc", workdir / f"l{k}.truth.json"
-            stages.simulate_static_check(check, session, site, seeds.child_seed(seed0, "noise_record", k), lrec, ltru)
-            noise = noise_models(inp, recording.load(lrec), ccfg)
-            lrec.unlink()
-            ltru.unlink()
-        elif mode == "shared":
-            noise = noise_models(inp, shared, ccfg)
-        ta = truth_vector(truth, "accel")
-        Mt, bt = ob.Form("paper12").KE_b(ta)
-        L, _ = ob.lower_triangular_gauge(Mt)
-        t9 = ob.Form("tri9").from_KE_b(L, bt)
-        tg = None
-        for key, nz in (("segment", None), ("with", noise)):
-            if key == "with" and noise is None:
-                continue
-            d = default_calibration(inp, ccfg, seeds.child_seed(seed0, "calibration", k), noise=nz)
-            z[key]["accel"].append((d["accel"].x - t9) / d["accel"].se)
-            g = d["gyro"]
-            tg = _match(g, truth_vector(truth, "gyro")) if tg is None else tg
-            z[key]["gyro"].append((g.x - tg) / g.se)
-            names = {"accel": d["accel"].names, "gyro": g.names}
-        bar(k + 1)
+    _Z.clear()
+    _Z.update(_z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files))
+    try:
+        workers = max(1, min(int(workers), n_seeds))
+        if workers > 1:
+            from concurrent.futures import ProcessPoolExecutor
+
+            ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"))
+            results = ex.map(_z_seed, range(n_seeds))
+        else:
+            ex, results = None, map(_z_seed, range(n_seeds))
+        try:
+            for k, (out, nm) in enumerate(results):
+                for key, zz in out.items():
+                    for sensor in ("accel", "gyro"):
+                        z[key][sensor].append(zz[sensor])
+                names = nm
+                bar(k + 1)
+        finally:
+            if ex is not None:
+                ex.shutdown(cancel_futures=True)
+    finally:
+        _Z.clear()
     main = "with" if mode != "none" else "segment"
     header = "sensor,parameter,mean_z,std_z,n_seeds" + (",mean_z_segment_sigma,std_z_segment_sigma" if main == "with"
                                                         else "")

@@ -32,11 +32,25 @@ def _site(site):
     return {k: site[k] for k in ("latitude_deg", "height_m") if k in site}
 
 
+def calibration_cfg(session: dict, site: dict) -> dict:
+    """The simulator configuration of the calibration session (``calibration_session`` and ``site`` sections)."""
+    cfg = {k: session[k] for k in CAL_SESSION_KEYS if k in session}
+    cfg["site"] = _site(site)
+    return cfg
+
+
+def static_check_cfg(check: dict, session: dict, site: dict) -> dict:
+    """The simulator configuration (counts mode) of the static check recording of the calibrated unit."""
+    cfg = {k: session[k] for k in ("sample_rate_hz", "sensor", "noise", "effects", "conceal", "temperature")
+           if k in session}
+    cfg.update(mode="counts", duration_h=check["duration_h"], attitude_deg=check["attitude_deg"], site=_site(site))
+    return cfg
+
+
 def simulate_calibration(session: dict, site: dict, seed: int, out, truth, rule="cli"):
     """Data stage: the Liu 2021 calibration session (24 positions + ± rotations)."""
 
-    cfg = {k: session[k] for k in CAL_SESSION_KEYS if k in session}
-    cfg["site"] = _site(site)
+    cfg = calibration_cfg(session, site)
     t = time.perf_counter()
     simulate.simulate_calibration_session(cfg, seed, out, truth, prov=provenance(rule, cfg, seed))
     print(f"wrote {out} in {time.perf_counter() - t:.1f} s")
@@ -45,9 +59,7 @@ def simulate_calibration(session: dict, site: dict, seed: int, out, truth, rule=
 def simulate_static_check(check: dict, session: dict, site: dict, seed: int, out, truth, rule="cli"):
     """Data stage: a static recording (counts) of the calibrated unit for Liu 2021's navigation check."""
 
-    cfg = {k: session[k] for k in ("sample_rate_hz", "sensor", "noise", "effects", "conceal", "temperature")
-           if k in session}
-    cfg.update(mode="counts", duration_h=check["duration_h"], attitude_deg=check["attitude_deg"], site=_site(site))
+    cfg = static_check_cfg(check, session, site)
     bar = Progress(1, "static check")
     simulate.simulate_static_session(cfg, seed, out, truth, prov=provenance(rule, cfg, seed),
                                      progress=lambda d, n: (setattr(bar, "total", n), bar(d)))
