@@ -2,6 +2,7 @@
 and the wall time of ``calib diagnose FILE``.
 
 Run: .venv/bin/python benchmarks/bench_diagnosis.py [--seeds 5] [--sessions null_a accel_lever_arm] [--no-cli]
+     [--cli-only] [--cli-reps 3]
 
 The sessions are those of the concealed-effect proof (:mod:`calib.studies.diagnosis_proof`: the Liu 2021 calibration
 session of the study with one hidden effect), diagnosed exactly as the proof does: the seeds of one session share
@@ -16,6 +17,8 @@ changed). What no hook covers (glue, the rank check) is listed as "other", so th
 from __future__ import annotations
 
 import argparse
+import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -137,30 +140,44 @@ def bench_session(name, seeds, noise_record, workdir):
 
 
 def bench_cli(recording, noise_record, out, reps=3):
-    """Wall times of ``python -m calib.cli diagnose`` (a fresh process each: start-up, reading, the whole diagnosis
-    with its library and figures)."""
-    rows = []
-    for extra, label in (([], "default (figures)"), (["--settings", str(out / "nofig.json")], "figures off")):
-        (out / "nofig.json").write_text('{"figures": false}')
-        cmd = [PY, "-m", "calib.cli", "diagnose", str(recording), "--out", str(out / "diag"),
-               "--noise-record", str(noise_record), "--force"] + extra
-        walls = []
-        for _ in range(reps):
+    """Wall and CPU times of ``python -m calib.cli diagnose`` (a fresh process each: start-up, reading and checking
+    the files, the whole diagnosis with its library, and the figures), with and without figures and with and
+    without the noise record; the runs of one repetition are interleaved, so that a change of the machine's load
+    falls on every row alike. The CPU time (user + system of the child) is the steadier number on a shared
+    machine."""
+    (out / "nofig.json").write_text('{"figures": false}')
+    variants = [(["--noise-record", str(noise_record)], "default (figures), noise record", "--noise-record NR"),
+                (["--noise-record", str(noise_record), "--settings", str(out / "nofig.json")],
+                 "figures off, noise record", "--noise-record NR --settings nofig.json"),
+                ([], "default (figures), no noise record", ""),
+                (["--settings", str(out / "nofig.json")], "figures off, no noise record", "--settings nofig.json")]
+    walls = {label: [] for _, label, _ in variants}
+    cpus = {label: [] for _, label, _ in variants}
+    for _ in range(reps):
+        for extra, label, _ in variants:
+            cmd = [PY, "-m", "calib.cli", "diagnose", str(recording), "--out", str(out / "diag"), "--force"] + extra
             shutil.rmtree(out / "diag", ignore_errors=True)
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             t0 = time.perf_counter()
             r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-            walls.append(time.perf_counter() - t0)
+            walls[label].append(time.perf_counter() - t0)
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpus[label].append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
             if r.returncode not in (0, 1, 3):
                 raise RuntimeError(r.stderr)
-        rows.append((label, " ".join(["python -m calib.cli diagnose", "FILE", "--out DIR", "--noise-record NR",
-                                      "--force"] + (["--settings nofig.json"] if extra else [])), walls))
-    # start-up alone: importing the diagnosis
-    walls = []
+    rows = [(label, " ".join(["python -m calib.cli diagnose FILE --out DIR --force", opts]).strip(), walls[label],
+             cpus[label]) for _, label, opts in variants]
+    # start-up alone: what `calib diagnose` imports before it reads the recording (the parser registers the
+    # sub-commands of calib.cli.formats)
+    walls, cpus = [], []
     for _ in range(reps):
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
-        subprocess.run([PY, "-c", "import calib.cli, calib.diagnosis"], cwd=ROOT, check=True)
+        subprocess.run([PY, "-c", "import calib.cli, calib.cli.formats, calib.diagnosis"], cwd=ROOT, check=True)
         walls.append(time.perf_counter() - t0)
-    rows.append(("start-up only", 'python -c "import calib.cli, calib.diagnosis"', walls))
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpus.append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
+    rows.append(("start-up only", 'python -c "import calib.cli, calib.cli.formats, calib.diagnosis"', walls, cpus))
     return rows
 
 
@@ -170,7 +187,16 @@ def main(argv=None):
     ap.add_argument("--sessions", nargs="+", default=["null_a", "accel_lever_arm"])
     ap.add_argument("--no-cli", action="store_true", help="skip the calib diagnose wall times")
     ap.add_argument("--cli-reps", type=int, default=3)
+    ap.add_argument("--cli-only", action="store_true",
+                    help="only the calib diagnose wall times (on the first session's template recording)")
     args = ap.parse_args(argv)
+    if args.cli_only:
+        with tempfile.TemporaryDirectory(prefix="bench-diag-") as tmp:
+            tmp = Path(tmp)
+            nr = _noise_record(tmp)
+            cli = bench_cli(_template(args.sessions[0], tmp / args.sessions[0]), nr, tmp, args.cli_reps)
+        _print_cli(cli, args.sessions[0])
+        return
     seeds = list(range(101, 101 + args.seeds))
     cmdline = "python benchmarks/bench_diagnosis.py " + " ".join(argv if argv is not None else sys.argv[1:])
     with tempfile.TemporaryDirectory(prefix="bench-diag-") as tmp:
@@ -197,11 +223,27 @@ def main(argv=None):
         f"{(sum(r['times']) - sum(r['phases'].values())) / len(r['times']):.3f}" for r in res) + " |")
     print("| **total** | " + " | ".join(f"**{sum(r['times']) / len(r['times']):.3f}**" for r in res) + " |")
     if cli:
-        print(f"\n## `calib diagnose` wall time (fresh process; file: {res[0]['name']} template recording)\n")
-        print("| run | command | min [s] | median [s] |")
-        print("|---|---|---|---|")
-        for label, cmd, walls in cli:
-            print(f"| {label} | `{cmd}` | {min(walls):.2f} | {statistics.median(walls):.2f} |")
+        _print_cli(cli, res[0]["name"])
+
+
+def _template(name, workdir) -> Path:
+    """The template recording of proof session ``name`` (what :func:`bench_session` diagnoses), alone."""
+    from calib.studies.diagnosis_proof import FastSession, proof_config
+
+    cfg = proof_config(name)
+    spec, drop = cfg.pop("unmodelled", None), cfg.pop("drop_vars", ())
+    Path(workdir).mkdir()
+    return FastSession(cfg, workdir, unmodelled=spec, drop_vars=drop).path
+
+
+def _print_cli(cli, name):
+    print(f"\n## `calib diagnose` wall time (fresh process; file: {name} template recording; "
+          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs at the end)\n")
+    print("| run | command | wall min [s] | wall median [s] | CPU median [s] |")
+    print("|---|---|---|---|---|")
+    for label, cmd, walls, cpus in cli:
+        print(f"| {label} | `{cmd}` | {min(walls):.2f} | {statistics.median(walls):.2f} | "
+              f"{statistics.median(cpus):.2f} |")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,9 @@
 """The calib-recording-1 format: broken files are refused with a message naming the file and the variable;
-a written recording reads back unchanged; the long-file writer never leaves a partial file behind."""
+a written recording reads back unchanged; the long-file writer never leaves a partial file behind; within
+``reuse_validation`` an unchanged file is read sample by sample once."""
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import pytest
@@ -189,3 +192,97 @@ def test_sample_time_convention(tmp_path):
     path = write_netcdf(ds, tmp_path / "bad.nc")
     with pytest.raises(recording.RecordingError, match="interval_start, interval_centre, interval_end"):
         recording.validate(path)
+
+
+# --------------------------------------------------------------------------- recording.reuse_validation: within the
+# block a file is checked sample by sample once, a file that changed since is checked again (and refused when
+# broken); outside it every call checks in full
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """Paths whose samples :func:`recording.validate` read, in order."""
+    calls = []
+    body = recording._validate_body
+
+    def counting(path, h):
+        calls.append(str(path))
+        return body(path, h)
+
+    monkeypatch.setattr(recording, "_validate_body", counting)
+    return calls
+
+
+def test_each_file_is_read_once_within_the_block(tmp_path, counted):
+    a = recording.write(good_dataset(1), tmp_path / "a.nc")
+    b = recording.write(good_dataset(2), tmp_path / "b.nc")
+    counted.clear()
+    with recording.reuse_validation():
+        ha = recording.validate(a)
+        hb = recording.validate(b)
+        assert recording.validate(a) == ha and recording.validate(b) == hb
+        ds = recording.load(a)
+        np.testing.assert_array_equal(ds["accel"].values, good_dataset(1)["accel"].values)
+        assert recording.validate(os.path.relpath(a)) == ha   # the same file by another name
+    assert counted == [str(a), str(b)]
+
+
+def test_outside_the_block_every_call_reads_the_samples(tmp_path, counted):
+    a = recording.write(good_dataset(1), tmp_path / "a.nc")
+    counted.clear()
+    recording.validate(a)
+    recording.load(a)
+    with recording.reuse_validation():
+        recording.validate(a)
+    recording.validate(a)
+    assert counted == [str(a)] * 4
+
+
+def test_blocks_nest_and_forget_on_exit(tmp_path, counted):
+    a = recording.write(good_dataset(1), tmp_path / "a.nc")
+    counted.clear()
+    with recording.reuse_validation():
+        recording.validate(a)
+        with recording.reuse_validation():
+            recording.validate(a)
+        recording.validate(a)   # the inner block's end keeps what the outer one knows
+    with recording.reuse_validation():
+        recording.validate(a)   # a new block checks again
+    assert counted == [str(a)] * 2
+
+
+def test_a_changed_file_is_checked_again_and_refused(tmp_path, counted):
+    path = recording.write(good_dataset(1), tmp_path / "a.nc")
+    with recording.reuse_validation():
+        recording.validate(path)
+        ds = good_dataset(1)
+        acc = ds["accel"].values.astype(float)
+        acc[17, 1] = np.nan
+        ds["accel"] = (("time", "axis"), acc, ds["accel"].attrs)
+        st = os.stat(path)
+        write_netcdf(ds, path)
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))   # changed, whatever the clock's grain
+        with pytest.raises(recording.RecordingError, match="NaN or Inf at sample 17"):
+            recording.validate(path)
+        with pytest.raises(recording.RecordingError, match="NaN or Inf at sample 17"):
+            recording.load(path)
+
+
+def test_a_refused_file_is_refused_every_time(tmp_path, counted):
+    ds = good_dataset(1)
+    ds["accel"].attrs["units"] = "furlong"
+    path = write_netcdf(ds, tmp_path / "bad.nc")
+    with recording.reuse_validation():
+        for _ in range(2):
+            with pytest.raises(recording.RecordingError, match="units='furlong' not allowed"):
+                recording.validate(path)
+        with pytest.raises(recording.RecordingError, match="file not found"):
+            recording.validate(tmp_path / "missing.nc")
+
+
+def test_the_header_given_back_is_a_copy(tmp_path):
+    path = recording.write(good_dataset(1), tmp_path / "a.nc")
+    with recording.reuse_validation():
+        h = recording.validate(path)
+        h.attrs["sensor"] = "changed by the caller"
+        assert recording.validate(path).attrs["sensor"] == "test unit"

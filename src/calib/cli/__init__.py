@@ -258,6 +258,14 @@ def _at_least_two(text):
 
 
 def cmd_diagnose(a):
+    from calib.io import recording
+
+    # the recording and the noise record are checked in full (every sample) once, here, not again when loaded
+    with recording.reuse_validation():
+        return _diagnose(a)
+
+
+def _diagnose(a):
     from calib.diagnosis import diagnose
 
     settings = None

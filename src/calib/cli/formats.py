@@ -23,9 +23,16 @@ from pathlib import Path
 import numpy as np
 
 from calib.core.errors import InputError, input_file, load_mapping
-from calib.ingest.common import sha256
 
 NOISE_FILES = ("noise.json", "noise.md", "allan.svg", "allan.png")
+
+
+def sha256(path) -> str:
+    """SHA-256 of a file (:func:`calib.ingest.common.sha256`): the importers are loaded only by the commands that
+    need them, not by every start of the command line."""
+    from calib.ingest.common import sha256 as file_sha256
+
+    return file_sha256(path)
 
 
 def _cli():

@@ -5,12 +5,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 
 from calib.diagnosis.geometry import AXES, ROWS, SENSORS
 from calib.diagnosis.problem import REPORT_FORMAT, Problem
-from calib.figures import style as figures
 from calib.sim import effects
 
 def fmt(v, nd=4):
@@ -172,6 +170,9 @@ def report_markdown(rep: dict) -> str:
 
 def residual_figure(prob: Problem, fits, path, title=""):
     """Standardised residuals (residual / sigma) per segment before and after, per sensor axis and row."""
+    from calib.figures import style as figures   # matplotlib with the project's rc settings: only when drawing
+
+    plt = figures.plt
     g, o = prob.geom, prob.geom.obs
     sig = prob.sigma()
     base, final = fits
@@ -205,6 +206,9 @@ def allan_figure(prob: Problem, path):
     """Allan deviation of the static segments per sensor, with its confidence band; only the sensors the
     diagnosis has (no blank panel); taus with fewer than 2 equivalent degrees of freedom are left out (their
     interval is wider than the plot)."""
+    from calib.figures import style as figures   # matplotlib with the project's rc settings: only when drawing
+
+    plt = figures.plt
     have = [(s, A) for s in SENSORS
             for A in [prob.noise.allan.get(s) if prob.noise is not None else
                       (prob.norm_allan if s == "accel" else None)] if A is not None]

@@ -124,6 +124,17 @@ def inspect(fig) -> list[str]:
     return problems
 
 
+def _drop_spent_layout_engine(fig) -> None:
+    """After ``fig.tight_layout()`` the figure keeps a placeholder layout engine that does nothing, yet its
+    presence makes ``savefig`` draw the whole figure once more, without output, before the real draw. The layout
+    is already fixed, so the placeholder goes: one draw instead of two, the same pixels."""
+    from matplotlib.layout_engine import PlaceHolderLayoutEngine
+
+    if isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine):
+        with plt.rc_context({"figure.autolayout": False, "figure.constrained_layout.use": False}):
+            fig.set_layout_engine(None)   # (None with these rc settings: no engine at all)
+
+
 def save(fig, path) -> Path:
     """Save ``fig`` to ``path`` (format from the suffix) deterministically and atomically; closes it.
 
@@ -138,6 +149,7 @@ def save(fig, path) -> Path:
             raise FigureCheckError(f"figure {path.name}: " + "; ".join(problems))
         for p in problems:
             print(f"figure {path.name}: {p}")
+    _drop_spent_layout_engine(fig)
     try:
         with atomic_path(path, suffix=suffix) as tmp, plt.rc_context(STYLE):
             fig.savefig(tmp, format=suffix[1:], metadata=_META.get(suffix))

@@ -29,7 +29,10 @@ Navigation frame: ENU. Rates are signed by the right-hand rule.
 """
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -333,9 +336,45 @@ def _check_fill(path, name, arr, fills, offset=0):
                                  "value was never recorded", "remove or interpolate the missing samples before import")
 
 
+#: files that passed :func:`validate` while :func:`reuse_validation` is active: identity -> Header (None: inactive)
+_VALIDATED: dict | None = None
+
+
+def _identity(path):
+    """What names one unchanged file: resolved path, device, inode, size, modification and change times
+    (None when the file cannot be looked at; :func:`validate` then says why)."""
+    try:
+        st = os.stat(path)
+        return (str(Path(path).resolve()), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    except (OSError, ValueError):
+        return None
+
+
+@contextlib.contextmanager
+def reuse_validation():
+    """Within the block, :func:`validate` checks each file once: a later call on the same, unchanged file (same
+    inode, size, modification and change times) returns the header of the first check instead of reading every
+    sample again. For one command that checks its inputs up front and then loads them (``calib diagnose``: the
+    recording and the noise record); outside the block every call checks the file in full. Nests."""
+    global _VALIDATED
+    outer = _VALIDATED
+    if outer is None:
+        _VALIDATED = {}
+    try:
+        yield
+    finally:
+        if outer is None:
+            _VALIDATED = None
+
+
 def validate(path) -> Header:
     """Full check of a recording: header (time coordinate included), segment table and every sample (read
     in chunks: NaN/Inf and masked / _FillValue samples are refused with their index)."""
+    memo = _VALIDATED
+    key = _identity(path) if memo is not None else None   # taken before the check: a file changed since misses
+    if key is not None and key in memo:
+        h = memo[key]
+        return dataclasses.replace(h, attrs=dict(h.attrs))
     h = read_header(path)
     try:
         _validate_body(path, h)
@@ -343,6 +382,8 @@ def validate(path) -> Header:
         raise
     except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
         raise _unreadable(path, exc) from exc
+    if key is not None:
+        memo[key] = dataclasses.replace(h, attrs=dict(h.attrs))
     return h
 
 

@@ -27,8 +27,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calib.figures import style as figures
-
 #: rows per chunk in :func:`moving_variance_norm` (the mean is removed per chunk to keep the
 #: running sums exact enough for counts near 32768 and for very long recordings)
 CHUNK = 1 << 16
@@ -351,6 +349,7 @@ def plot_detection(accel, gyro, fs: float, detection: StaticDetection, path, *, 
     their thresholds (log scale). Long records are drawn as the min/max envelope of buckets, about
     ``max_points`` points per line (the intervals are drawn exactly). Returns the path written.
     """
+    from calib.figures import style as figures   # matplotlib and the project's rc settings: only when drawing
 
     plt = figures.plt
     accel = np.asarray(accel, dtype=np.float64)

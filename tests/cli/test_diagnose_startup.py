@@ -1,0 +1,81 @@
+"""What ``calib diagnose`` loads and reads: the command line starts without the plotting library and the importers
+(matplotlib is loaded only when a figure is drawn), and each input file is checked sample by sample once -- with
+the same report as when every load checks the file again."""
+from __future__ import annotations
+
+import contextlib
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from calib import cli
+from calib.io import recording
+from calib.sim import simulator
+
+ROOT = Path(__file__).resolve().parents[2]
+SHORT_SESSION = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
+
+
+def _modules_after(code: str) -> set:
+    out = subprocess.run([sys.executable, "-c", code + "\nimport sys\nprint(' '.join(sorted(sys.modules)))"],
+                         capture_output=True, text=True, cwd=ROOT, check=True, timeout=120).stdout
+    return set(out.split())
+
+
+def test_start_up_loads_no_plotting_and_no_importers():
+    mods = _modules_after("import calib.cli, calib.cli.formats, calib.diagnosis")
+    assert "calib.diagnosis.run" in mods and "calib.signal.detect" in mods
+    assert not {m for m in mods if m == "matplotlib" or m.startswith(("matplotlib.", "calib.ingest",
+                                                                        "calib.figures"))}
+
+
+def test_a_figure_is_drawn_with_the_project_style(tmp_path):
+    """calib.signal.detect no longer loads matplotlib on import; its figure still gets the project's rc settings
+    (calib.figures.style) before anything is drawn, and the same file twice."""
+    code = (
+        "import sys, numpy as np\n"
+        "from calib.signal import detect\n"
+        "assert 'matplotlib' not in sys.modules\n"
+        "rng = np.random.default_rng(0)\n"
+        "acc = rng.normal(0, 1e-3, (3000, 3)); acc[1000:1500] += rng.normal(0, 1, (500, 3))\n"
+        "gyr = rng.normal(0, 1e-3, (3000, 3)); gyr[1000:1500] += rng.normal(0, 1, (500, 3))\n"
+        "det = detect.detect_static(acc, gyr, 100.0, init_s=5.0)\n"
+        "made = []\n"
+        "import matplotlib.figure as mf\n"
+        "init = mf.Figure.__init__\n"
+        "def spy(self, *a, **k):\n"
+        "    import matplotlib\n"
+        "    style = sys.modules.get('calib.figures.style')\n"
+        "    made.append(style is not None and all(matplotlib.rcParams[k] == v for k, v in style.STYLE.items()))\n"
+        "    init(self, *a, **k)\n"
+        "mf.Figure.__init__ = spy\n"
+        f"for name in ('a.svg', 'b.svg'): detect.plot_detection(acc, gyr, 100.0, det, r'{tmp_path}' + '/' + name)\n"
+        "assert made == [True, True], made\n")
+    mods = _modules_after(code)
+    assert "calib.figures.style" in mods
+    assert (tmp_path / "a.svg").read_bytes() == (tmp_path / "b.svg").read_bytes()
+
+
+def test_each_input_is_read_once_with_the_same_report(tmp_path, capsys, monkeypatch, noise_record):
+    rec = simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "clean.nc")
+    settings = tmp_path / "s.json"
+    settings.write_text(json.dumps({"figures": False}))
+    reads = []
+    body = recording._validate_body
+
+    def counting(path, h):
+        reads.append(Path(path).resolve())
+        return body(path, h)
+
+    monkeypatch.setattr(recording, "_validate_body", counting)
+    argv = ["diagnose", str(rec), "--settings", str(settings), "--noise-record", noise_record]
+    assert cli.main(argv + ["--out", str(tmp_path / "once")]) == 0
+    assert sorted(map(str, reads)) == sorted(str(Path(p).resolve()) for p in (rec, noise_record))
+    # every load checking the file again (as before): the same report, byte for byte
+    monkeypatch.setattr(recording, "reuse_validation", contextlib.nullcontext)
+    assert cli.main(argv + ["--out", str(tmp_path / "every")]) == 0
+    assert len(reads) > 2
+    assert (tmp_path / "once" / "report.json").read_bytes() == (tmp_path / "every" / "report.json").read_bytes()
+    assert (tmp_path / "once" / "report.md").read_bytes() == (tmp_path / "every" / "report.md").read_bytes()
+    capsys.readouterr()
