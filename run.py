@@ -2,7 +2,8 @@
 """Set up calib in its own virtual environment and run the study or the tests.
 
     python3 run.py study   # create .venv, install, run the full default study (config/config.yaml)
-    python3 run.py test    # create/reuse .venv, install, run pytest, the import-layer contract, snakemake --lint and the .test workflow
+    python3 run.py test    # create/reuse .venv, install, run pytest (one worker per core), the import-layer contract,
+                           # snakemake --lint and the .test workflow
 
 Needs only Python >= 3.11 and pip. Extra arguments after the verb go to snakemake (study) or pytest (test).
 """
@@ -44,6 +45,17 @@ def setup():
     return env
 
 
+def pytest_workers(rest):
+    """pytest on every core this process may use (pytest-xdist): whole files per worker (``--dist loadfile``), so
+    that a module's fixtures are computed once; the files are started longest first (tests/conftest.py).
+    ``CALIB_TEST_WORKERS`` sets the number; ``python3 run.py test -n 0`` (a later ``-n`` wins) runs serially."""
+    if any("no:xdist" in a for a in rest):
+        return []
+    n = os.environ.get("CALIB_TEST_WORKERS") or str(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                                                    else os.cpu_count() or 1)
+    return ["-n", n, "--dist", "loadfile", "--no-loadscope-reorder"]
+
+
 def main(argv):
     verb = argv[0] if argv else "help"
     rest = argv[1:]
@@ -51,8 +63,14 @@ def main(argv):
         env = setup()
         sh(BIN / "snakemake", "--profile", "workflow/profiles/default", *rest, env=env)
     elif verb == "test":
+        # Byte code: pip would compile all ~11 000 modules of a fresh environment one after the other (two thirds of
+        # the install's time); the tests import a third of them. So pip does not compile here, and every process
+        # writes the cache of a module when it first imports it (PYTHONDONTWRITEBYTECODE, if set, is lifted), in
+        # parallel, the calib sources included.
+        os.environ.setdefault("PIP_COMPILE", "0")
+        os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
         env = setup()
-        sh(PY, "-m", "pytest", "-q", *rest, env=env)
+        sh(PY, "-m", "pytest", "-q", *pytest_workers(rest), *rest, env=env)
         sh(BIN / "lint-imports", env=env)  # the layer contract of pyproject.toml [tool.importlinter]
         sh(BIN / "snakemake", "--lint", "--configfile", ".test/config.yaml", env=env)
         env_strict = dict(env, CALIB_FIGURE_CHECK="strict")  # a figure with an empty panel, etc. fails the rule

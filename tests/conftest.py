@@ -1,9 +1,41 @@
 """Fixtures shared by the test folders."""
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from calib.sim import simulator
+
+#: the test files that take longest (CPU s on one core, or wall s where they wait on subprocesses), longest
+#: first. With several pytest-xdist workers (``python3 run.py test``: ``--dist loadfile``) the files are handed out
+#: in this order, so that no long file starts last while the other cores run out of work. Order only: a file not
+#: listed runs after these, in collection order; a stale list costs balance, never a test.
+LONGEST_FIRST = [
+    "tests/fieldcal/test_units_check.py",
+    "tests/workflow/test_cluster.py",
+    "tests/diagnosis/test_diagnosis_proof.py",
+    "tests/formats/test_noise.py",
+    "tests/studies/test_sweeps.py",
+    "tests/fieldcal/test_default_detection.py",
+    "tests/diagnosis/test_unmodelled.py",
+    "tests/cli/test_mislabelled_shared.py",
+    "tests/cli/test_exit_codes.py",
+    "tests/calibration/test_calibration_fit.py",
+    "tests/diagnosis/test_diagnosis_findings.py",
+    "tests/cli/test_refusals.py",
+    "tests/studies/test_workflow_support.py",
+]
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist: the files of :data:`LONGEST_FIRST` first, in its order (a stable sort: the tests of a
+    file keep their order). A serial run keeps the collection order."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return
+    rank = {f: i for i, f in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda it: rank.get(it.nodeid.split("::", 1)[0], len(rank)))
+
 
 #: the site of the short synthetic sessions of the diagnosis tests
 SITE = {"latitude_deg": 30.58, "height_m": 0.0}

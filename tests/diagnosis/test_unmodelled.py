@@ -8,6 +8,8 @@ fixture). Expected answers are properties of the injected physics, never numbers
 """
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -19,8 +21,22 @@ SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "rev
 SEEDS = (101, 102)   # noise seeds of these sessions; no constant of the diagnosis was tuned on them
 
 
-def _fast(tmp_path, spec):
-    return FastSession({**SHORT, "effects": {}, "conceal": True}, tmp_path, unmodelled=spec)
+@pytest.fixture(scope="module")
+def fast(tmp_path_factory):
+    """``fast(spec)``: the FastSession of the short path with the out-of-library effects ``spec``, built once per
+    spec for this file. A session is fixed by its configuration (template seed 0) and :meth:`FastSession.dataset`
+    draws a noise seed without changing it, so the tests that share one diagnose exactly the recordings a session of
+    their own would give them."""
+    made = {}
+
+    def get(spec):
+        key = json.dumps(spec, sort_keys=True)
+        if key not in made:
+            made[key] = FastSession({**SHORT, "effects": {}, "conceal": True}, tmp_path_factory.mktemp("fast"),
+                                    unmodelled=spec)
+        return made[key]
+
+    return get
 
 
 def _diagnose(fs, seed, noise_record, drop=()):
@@ -34,8 +50,8 @@ def _diagnose(fs, seed, noise_record, drop=()):
 # --------------------------------------------------------------------------- the injection itself
 
 
-def test_injections_follow_their_closed_forms(tmp_path):
-    fs = _fast(tmp_path, [])
+def test_injections_follow_their_closed_forms(fast):
+    fs = fast([])
     sim, clean = fs.sim, fs.clean
     dt = 1.0 / sim.sample_rate_hz
     n = len(clean)
@@ -78,59 +94,58 @@ def test_injections_follow_their_closed_forms(tmp_path):
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_periodic_gyro_bias_is_unexplained_and_located(tmp_path, noise_record, seed):
+def test_periodic_gyro_bias_is_unexplained_and_located(fast, noise_record, seed):
     """0.3 deg/h on the x gyro with a 20 min period (the issue's audit case)."""
-    fs = _fast(tmp_path, [{"effect": "periodic_bias", "sensor": "gyro", "axis": "x", "amplitude": 0.3,
-                           "period_s": 1200.0}])
+    fs = fast([{"effect": "periodic_bias", "sensor": "gyro", "axis": "x", "amplitude": 0.3, "period_s": 1200.0}])
     rep = _diagnose(fs, seed, noise_record)
     assert rep["verdict"] == "unexplained" and rep["explained"] is False, rep["verdict_reason"]
     assert any(u.get("sensor") == "gyro" and u.get("axis") == "x" for u in rep["unexplained"])
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_table_stop_errors_are_not_explained(tmp_path, noise_record, seed):
+def test_table_stop_errors_are_not_explained(fast, noise_record, seed):
     """Every static stop 3 arcsec off its recorded attitude: no library term may explain it."""
-    fs = _fast(tmp_path, [{"effect": "stop_attitude", "arcsec": 3.0}])
+    fs = fast([{"effect": "stop_attitude", "arcsec": 3.0}])
     rep = _diagnose(fs, seed, noise_record)
     assert rep["explained"] is False and rep["verdict"] in ("unexplained", "inconclusive"), rep["verdict_reason"]
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_scale_drift_without_temperature_channel_is_unexplained(tmp_path, noise_record, seed):
+def test_scale_drift_without_temperature_channel_is_unexplained(fast, noise_record, seed):
     """The z accelerometer scale factor grows 60 ppm over the session; no temperature channel."""
-    fs = _fast(tmp_path, [{"effect": "scale_drift", "sensor": "accel", "axis": "z", "ppm": 60.0}])
+    fs = fast([{"effect": "scale_drift", "sensor": "accel", "axis": "z", "ppm": 60.0}])
     rep = _diagnose(fs, seed, noise_record, drop=("temperature",))
     assert rep["explained"] is False and rep["verdict"] in ("unexplained", "inconclusive"), rep["verdict_reason"]
     assert "accel_lever_arm" not in {f["effect"] for f in rep["found"]}
 
 
-def test_scale_drift_with_a_monotonic_temperature_discloses_the_rival(tmp_path, noise_record):
+def test_scale_drift_with_a_monotonic_temperature_discloses_the_rival(fast, noise_record):
     """With the warm-up temperature channel, a drift in time and a temperature coefficient fit alike: either the
     data stay unexplained or the temperature term comes with the time drift as a disclosed alternative."""
-    fs = _fast(tmp_path, [{"effect": "scale_drift", "sensor": "accel", "axis": "z", "ppm": 60.0}])
+    fs = fast([{"effect": "scale_drift", "sensor": "accel", "axis": "z", "ppm": 60.0}])
     rep = _diagnose(fs, SEEDS[0], noise_record)
     if rep["explained"]:
         assert any("drifting linearly in time" in r["alternative"] for r in rep["form_alternatives"])
         assert "temperature profile that is not monotonic" in rep["verdict_reason"]
 
 
-def test_quartic_nonlinearity_is_unexplained_or_its_rival_disclosed(tmp_path, noise_record):
-    fs = _fast(tmp_path, [{"effect": "quartic", "sensor": "accel", "axis": "y", "k4_ug_per_g4": 150.0}])
+def test_quartic_nonlinearity_is_unexplained_or_its_rival_disclosed(fast, noise_record):
+    fs = fast([{"effect": "quartic", "sensor": "accel", "axis": "y", "k4_ug_per_g4": 150.0}])
     rep = _diagnose(fs, SEEDS[0], noise_record)
     if rep["explained"]:
         assert any("fourth-order" in r["alternative"] for r in rep["form_alternatives"]), rep["verdict_reason"]
 
 
-def test_bias_step_is_not_explained(tmp_path, noise_record):
-    fs = _fast(tmp_path, [{"effect": "bias_step", "sensor": "accel", "axis": "x", "step": 30.0}])
+def test_bias_step_is_not_explained(fast, noise_record):
+    fs = fast([{"effect": "bias_step", "sensor": "accel", "axis": "x", "step": 30.0}])
     rep = _diagnose(fs, SEEDS[0], noise_record)
     assert rep["explained"] is False, rep["verdict_reason"]
 
 
-def test_without_a_noise_record_slow_noise_is_not_called_physics(tmp_path):
+def test_without_a_noise_record_slow_noise_is_not_called_physics(fast):
     """No long static record: the slow noise between windows is not measured, so a clean session the measured
     fast noise cannot explain is 'inconclusive' (exit 3), never 'missing_physics' by a fitted noise level."""
-    fs = _fast(tmp_path, [])
+    fs = fast([])
     rep = _diagnose(fs, SEEDS[0], None)
     assert rep["verdict"] in ("adequate", "inconclusive")
     assert rep["found"] == [] or rep["verdict"] == "inconclusive"
@@ -167,14 +182,14 @@ def test_the_proof_fails_when_its_seeds_reject_a_claim():
     assert rejected_claims([{"session": "c", "kind": "confounded", "attributed_to_one": 1}])
 
 
-def test_half_sample_stamps_are_not_a_clock_offset(tmp_path, noise_record):
+def test_half_sample_stamps_are_not_a_clock_offset(fast, noise_record):
     """A logger that stamps the centre of each sample's interval: the table angle read at the stamps is half a
     sample later than at the interval starts. Declared (sample_time_convention = interval_centre), the diagnosis
     places the motion correctly and names no clock offset; left undeclared, the same data show a spurious clock
     offset of a fraction of a sample -- the convention is what separates bookkeeping from physics."""
     import math
 
-    fs = FastSession({**SHORT, "effects": {}, "conceal": True}, tmp_path)
+    fs = fast([])
     ds = fs.dataset(SEEDS[0])
     # the table angle at the centre of each sample's interval, from the simulator's own kinematics
     n, rate = ds.sizes["time"], float(ds.attrs["sample_rate_hz"])
