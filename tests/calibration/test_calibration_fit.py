@@ -293,23 +293,27 @@ def make_recording(n_static=24, static_s=30.0, rot_rate=30.0, revs=1.5, seed=0, 
     gap = int(FS)
 
     def add(C_of_k, omega_b_tab, n, s):
-        k = np.arange(n) + 0.5  # mid-sample
-        f = np.empty((n, 3))
-        w = np.empty((n, 3))
-        for i, kk in enumerate(k):
-            C = C_of_k(kk)
-            f[i] = C.T @ np.array([0.0, 0.0, g])
-            w[i] = C.T @ w_ie + omega_b_tab
+        """``C_of_k``: the attitude at mid-sample k, or one fixed attitude (every sample the same row)."""
+        if callable(C_of_k):
+            f = np.empty((n, 3))
+            w = np.empty((n, 3))
+            for i, kk in enumerate(np.arange(n) + 0.5):  # mid-sample
+                C = C_of_k(kk)
+                f[i] = C.T @ np.array([0.0, 0.0, g])
+                w[i] = C.T @ w_ie + omega_b_tab
+        else:
+            f = np.tile(C_of_k.T @ np.array([0.0, 0.0, g]), (n, 1))
+            w = np.tile(C_of_k.T @ w_ie + omega_b_tab, (n, 1))
         acc.append(ACC.forward(f) + rng.normal(0.0, 30.0, (n, 3)))
         gyr.append(GYR.forward(w) + rng.normal(0.0, 2000.0, (n, 3)))
         seg.append(np.full(n, s))
         ang.append(np.zeros(n))
 
     for m in range(n_static):
-        add(lambda kk, C=ATT[m]: C, np.zeros(3), int(static_s * FS), len(kinds))
+        add(ATT[m], np.zeros(3), int(static_s * FS), len(kinds))
         kinds.append("static"), labels.append(f"POS{m + 1}"), axes.append(np.zeros(3)), rates.append(np.nan)
         atts.append(ATT[m])
-        add(lambda kk, C=ATT[m]: C, np.zeros(3), gap, -1)
+        add(ATT[m], np.zeros(3), gap, -1)
     for a in np.eye(3):
         C0 = synth.vertical_axis_attitude(a)
         for sgn in (1.0, -1.0):
@@ -320,7 +324,7 @@ def make_recording(n_static=24, static_s=30.0, rot_rate=30.0, revs=1.5, seed=0, 
             ang[-1] = r * np.arange(n) / FS
             kinds.append("rotation"), labels.append(f"ROT {'xyz'[int(np.argmax(a))]}{'+' if sgn > 0 else '-'}")
             axes.append(a), rates.append(0.0 if zero_rate else r), atts.append(C0)
-            add(lambda kk, C0=C0: C0, np.zeros(3), gap, -1)
+            add(C0, np.zeros(3), gap, -1)
     acc = np.concatenate(acc)
     gyr = np.concatenate(gyr)
     counts_a = np.zeros_like(acc) if flat else _quantise(acc, FS)
