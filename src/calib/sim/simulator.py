@@ -668,6 +668,23 @@ def _time_chunking(n: int, target: int) -> int:
     return -(-int(n) // k)
 
 
+def _static_layout(c: dict, where: str = "static_session"):
+    """Site, rate, duration, sample count and attitude of a merged static-session config, each checked (one
+    line naming the key on a bad value): ``(lat, h, fs, dur_h, n, cbn, att)``."""
+    lat, h = _site(c, where)
+    fs = float(c["sample_rate_hz"])
+    dur_h = float(c["duration_h"])
+    if not (fs > 0 and math.isfinite(fs)):
+        raise SimConfigError(f"{where}.sample_rate_hz: {fs} is not a positive rate")
+    if not (dur_h > 0 and math.isfinite(dur_h)):
+        raise SimConfigError(f"{where}.duration_h: {dur_h} is not a positive duration")
+    n = int(round(dur_h * 3600.0 * fs))
+    if n < 2:
+        raise SimConfigError(f"{where}.duration_h: {dur_h} h at {fs} Hz gives fewer than 2 samples")
+    cbn, att = _attitude(c, where)
+    return lat, h, fs, dur_h, n, cbn, att
+
+
 def simulate_static_session(cfg: dict, seed: int, out_path, truth_path=None, prov=None, progress=None,
                             chunk_samples: int = 1 << 20) -> Path:
     """A long stationary recording written chunk by chunk (memory flat in the duration).
@@ -691,19 +708,8 @@ def simulate_static_session(cfg: dict, seed: int, out_path, truth_path=None, pro
     mode = (cfg or {}).get("mode", "physical")
     if mode not in ("physical", "counts"):
         raise SimConfigError(f"static_session.mode: {mode!r}; use 'physical' or 'counts'")
-    where = "static_session"
-    c = _merge(cfg, STATIC_PHYSICAL_DEFAULTS if mode == "physical" else STATIC_COUNTS_DEFAULTS, where)
-    lat, h = _site(c, where)
-    fs = float(c["sample_rate_hz"])
-    dur_h = float(c["duration_h"])
-    if not (fs > 0 and math.isfinite(fs)):
-        raise SimConfigError(f"{where}.sample_rate_hz: {fs} is not a positive rate")
-    if not (dur_h > 0 and math.isfinite(dur_h)):
-        raise SimConfigError(f"{where}.duration_h: {dur_h} is not a positive duration")
-    n = int(round(dur_h * 3600.0 * fs))
-    if n < 2:
-        raise SimConfigError(f"{where}.duration_h: {dur_h} h at {fs} Hz gives fewer than 2 samples")
-    cbn, att = _attitude(c, where)
+    c = _merge(cfg, STATIC_PHYSICAL_DEFAULTS if mode == "physical" else STATIC_COUNTS_DEFAULTS, "static_session")
+    lat, h, fs, dur_h, n, cbn, att = _static_layout(c)
     chunk_samples = _time_chunking(n, chunk_samples)  # written by whole file chunks
     t_wall = _time.perf_counter()
     if prov is None:
@@ -837,17 +843,7 @@ def static_counts_dataset(cfg: dict, seed: int, chunk_samples: int = NOISE_BLOCK
     c = _merge(cfg, STATIC_COUNTS_DEFAULTS, "static_session")
     if c.get("mode", "counts") != "counts":
         raise SimConfigError(f"static_session.mode: {c['mode']!r}; the in-memory static record is counts only")
-    lat, h = _site(c, "static_session")
-    fs = float(c["sample_rate_hz"])
-    dur_h = float(c["duration_h"])
-    if not (fs > 0 and math.isfinite(fs)):
-        raise SimConfigError(f"static_session.sample_rate_hz: {fs} is not a positive rate")
-    if not (dur_h > 0 and math.isfinite(dur_h)):
-        raise SimConfigError(f"static_session.duration_h: {dur_h} is not a positive duration")
-    n = int(round(dur_h * 3600.0 * fs))
-    if n < 2:
-        raise SimConfigError(f"static_session.duration_h: {dur_h} h at {fs} Hz gives fewer than 2 samples")
-    cbn, att = _attitude(c, "static_session")
+    lat, h, fs, dur_h, n, cbn, att = _static_layout(c)
     chunk = max(1, int(chunk_samples))  # the samples do not depend on it (module docstring), only the memory does
     eng, _, _, noise, eff, _, _ = _static_counts_unit(c, seed, lat, h, fs, cbn)
     quant = noise["quantize"]
