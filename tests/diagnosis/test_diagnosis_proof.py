@@ -13,6 +13,7 @@ from calib.core import seeds
 from calib.io import recording
 from calib.sim import simulator
 from calib.studies import diagnosis as diagnosis_study
+from calib.studies import diagnosis_proof
 from calib.studies.diagnosis_proof import FastSession, run_proof
 from calib.studies.diagnosis_score import score
 
@@ -34,6 +35,25 @@ def test_fast_session_is_the_simulator(tmp_path):
     assert np.array_equal(acc, ds["accel"].values) and np.array_equal(gyr, ds["gyro"].values)
     acc2, _ = simulator.build_calibration_simulator(cfg, 5).counts()
     assert np.array_equal(acc2, ds["accel"].values)
+
+
+def test_shared_noise_is_the_simulator(tmp_path):
+    """Sessions of one unit share a seed's noise increments (kept once per process): a second session served from
+    the kept noise, and a unit with other noise terms (never served another unit's noise), still give exactly the
+    counts the simulator writes for that seed."""
+    diagnosis_proof.clear_shared_noise()
+    cfg_a = {**SHORT, "effects": {"time_offset": {"offset_s": 0.01}}, "conceal": True}
+    cfg_b = {**SHORT, "effects": {"accel_cross_coupling": {}}, "conceal": True}
+    noisier = {**SHORT, "effects": {}, "conceal": True, "noise": {"accel_bias_instability_ug": 50.0}}
+    FastSession(cfg_a, tmp_path / "a").dataset(7)
+    assert len(diagnosis_proof._NOISE) == 1
+    for i, cfg in enumerate((cfg_b, noisier)):
+        fast = FastSession(cfg, tmp_path / f"f{i}").dataset(7)
+        ds = recording.load(simulator.simulate_calibration_session(cfg, 7, tmp_path / f"s{i}.nc"))
+        assert np.array_equal(ds["accel"].values, fast["accel"].values)
+        assert np.array_equal(ds["gyro"].values, fast["gyro"].values)
+    assert len(diagnosis_proof._NOISE) == 2       # the noisier unit's noise is its own
+    diagnosis_proof.clear_shared_noise()
 
 
 def test_power_scan_session_reuse_equals_a_fresh_build(tmp_path):

@@ -330,6 +330,35 @@ def _noise_and_count(clean, z, sig_w, a, c, K, dt, beta, carry, quantize, inc, c
                 carry[j] = r - q
 
 
+@numba.njit(cache=True)
+def _noise_increments(z, sig_w, a, c, K, dt, beta, out):  # pragma: no cover
+    """The noise part of :func:`_noise_and_count` alone: ``out[i, j] = K (sig_w z_i + beta_i dt)`` [count] with the
+    same recursion of beta (updated in place) and the same operations in the same order, so that ``clean + out``
+    is the increment :func:`_noise_and_count` forms, to the bit."""
+    n = out.shape[0]
+    for i in range(n):
+        for j in range(6):
+            s = a[j] * beta[j] + c[j] * z[i, 6 + j]
+            beta[j] = s
+            out[i, j] = K[j] * (sig_w[j] * z[i, j] + s * dt)
+
+
+@numba.njit(cache=True)
+def _count(clean, noise, carry, quantize, inc, counts):  # pragma: no cover
+    """The pulse counter of :func:`_noise_and_count` on precomputed noise (:func:`_noise_increments`):
+    ``inc = clean + noise``, counts with the fraction carried (``carry`` updated in place)."""
+    n = inc.shape[0]
+    for i in range(n):
+        for j in range(6):
+            x = clean[i, j] + noise[i, j]
+            inc[i, j] = x
+            if quantize:
+                r = carry[j] + x
+                q = math.floor(r)
+                counts[i, j] = q
+                carry[j] = r - q
+
+
 @dataclass
 class Chunk:
     """One chunk of simulated samples."""
@@ -389,6 +418,21 @@ class CountsEngine:
         self.carry = np.zeros(6)
         self.K = np.concatenate([accel.K, gyro.K])
 
+    def noise_increments(self, n: int) -> np.ndarray:
+        """The noise increments K (sig_w z + beta dt) [count] of the next ``n`` samples (n, 6), advancing the noise
+        state as :meth:`next` does. They depend on the noise seed and the noise terms only, not on the inputs: the
+        sessions of one unit that share a seed share them (:meth:`CalibrationSimulator.noise_increments`)."""
+        out = np.empty((int(n), 6))
+        z = self.normals.get(self.pos, self.pos + int(n))
+        _noise_increments(z, self.sig_white, self.a, self.c, self.K, self.dt, self.beta, out)
+        self.pos += int(n)
+        return out
+
+    def noise_key(self) -> tuple:
+        """Everything the noise increments of this engine depend on besides the sample count (for a cache)."""
+        return (self.normals.seed, self.normals.stream, self.dt, tuple(self.sig_white), tuple(self.a),
+                tuple(self.c), tuple(self.K), tuple(self.beta), str(self.noise.get("bias_model")))
+
     def _clean(self, i0: int, n: int) -> np.ndarray:
         """Noise-free increments int (K (E x + d) + b) dt over each sample [count], shape (n, 6)."""
         dt, m = self.dt, len(self.s_nodes)
@@ -414,7 +458,9 @@ class CountsEngine:
             out[:, 3:] += (self.w_nodes[j] * dt) * ng[:, j, :]
         return out
 
-    def next(self, n: int) -> Chunk:
+    def next(self, n: int, noise: np.ndarray | None = None) -> Chunk:
+        """The next ``n`` samples. ``noise``: their noise increments (n, 6) [count] from :meth:`noise_increments` of
+        an engine of the same noise seed and noise terms, instead of drawing them (the same samples to the bit)."""
         n = int(n)
         i0, dt = self.pos, self.dt
         if self._clean_given is not None:
@@ -425,12 +471,15 @@ class CountsEngine:
             clean = np.broadcast_to(self._clean_const, (n, 6))
         else:
             clean = self._clean(i0, n)
-        z = self.normals.get(i0, i0 + n)
         inc = np.empty((n, 6))
         quant = bool(self.noise["quantize"])
         counts = np.empty((n, 6), dtype=np.int64) if quant else inc
-        _noise_and_count(clean, z, self.sig_white, self.a, self.c, self.K, dt, self.beta, self.carry, quant,
-                         inc, counts)
+        if noise is None:
+            z = self.normals.get(i0, i0 + n)
+            _noise_and_count(clean, z, self.sig_white, self.a, self.c, self.K, dt, self.beta, self.carry, quant,
+                             inc, counts)
+        else:
+            _count(np.ascontiguousarray(clean, dtype=np.float64), noise, self.carry, quant, inc, counts)
         if quant:
             big = np.abs(counts).max(initial=0)
             if big > INT32_MAX:
@@ -491,17 +540,37 @@ class CalibrationSimulator:
             out[i0:i0 + k] = eng._clean(i0, k)
         return out
 
-    def counts(self, seed: int | None = None, clean: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def noise_key(self, seed: int | None = None) -> tuple:
+        """The key :meth:`noise_increments` returns for ``seed``, without drawing the noise."""
+        return self.engine(seed).noise_key() + (self.n_samples,)
+
+    def noise_increments(self, seed: int | None = None) -> tuple[tuple, np.ndarray]:
+        """``(key, noise)``: the noise increments (n_samples, 6) [count] of noise ``seed`` (:meth:`CountsEngine.noise_increments`,
+        drawn in the blocks :meth:`counts` draws them in) and the key of everything they depend on (seed, noise terms,
+        scale factors, sample count): sessions of the same unit with equal keys have equal noise."""
+        n = self.n_samples
+        eng = self.engine(seed)
+        key = eng.noise_key() + (n,)
+        out = np.empty((n, 6))
+        for i0 in range(0, n, NOISE_BLOCK):
+            k = min(NOISE_BLOCK, n - i0)
+            out[i0:i0 + k] = eng.noise_increments(k)
+        return key, out
+
+    def counts(self, seed: int | None = None, clean: np.ndarray | None = None,
+               noise: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Accelerometer and gyro counts per sample (n_samples, 3 each) for noise ``seed`` (default: the
         simulator's own): exactly the samples :func:`simulate_calibration_session` writes for that seed.
-        ``clean``: :meth:`clean_increments`, computed once for many seeds of the same configuration."""
+        ``clean``: :meth:`clean_increments`, computed once for many seeds of the same configuration. ``noise``:
+        :meth:`noise_increments` of the same seed (e.g. computed once for every session of the unit)."""
         n = self.n_samples
         eng = self.engine(seed, clean)
         dtype = np.int32 if self.noise["quantize"] else np.float64
         acc = np.empty((n, 3), dtype=dtype)
         gyr = np.empty((n, 3), dtype=dtype)
         for i0 in range(0, n, NOISE_BLOCK):
-            ch = eng.next(min(NOISE_BLOCK, n - i0))
+            k = min(NOISE_BLOCK, n - i0)
+            ch = eng.next(k, None if noise is None else noise[i0:i0 + k])
             acc[i0:i0 + len(ch.accel)] = ch.accel
             gyr[i0:i0 + len(ch.gyro)] = ch.gyro
         return acc, gyr
