@@ -22,10 +22,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 from calib.diagnosis.geometry import AXES, SENSORS
-from calib.diagnosis.problem import Fit, Problem
+from calib.diagnosis.problem import Fit, Problem, chi2_sf
 
 
 def measured_factors(prob: Problem) -> dict:
@@ -104,7 +103,7 @@ def adequacy(prob: Problem, f: Fit, alpha: float | None = None, L=None) -> dict:
         dof = float(np.sum(free[m]))
         dof = max(dof, 0.5)
         tests.append({"name": name, **desc, "n_obs": int(m.sum()), "chi2": c2, "dof": dof,
-                      "overdispersion": c2 / dof, "p": float(stats.chi2.sf(c2, dof))})
+                      "overdispersion": c2 / dof, "p": float(chi2_sf(c2, dof))})
     rej, adj = holm([t["p"] for t in tests], alpha)
     for t, r, a in zip(tests, rej, adj):
         t["p_holm"] = float(a)

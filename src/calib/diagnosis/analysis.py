@@ -7,7 +7,6 @@ import copy
 import math
 
 import numpy as np
-from scipy import stats
 
 from calib.diagnosis.adequacy import adequacy, measured_factors, unexplained_entries
 from calib.diagnosis.blas import solve_lower
@@ -18,7 +17,7 @@ from calib.diagnosis.identifiability import discrimination_noncentrality, librar
 from calib.diagnosis.library import EXPERIMENTS, build_library
 from calib.diagnosis.locate import block_table, locate
 from calib.diagnosis.noise import covariance_blocks, profile_noise, shape_eig
-from calib.diagnosis.problem import Fit, Problem, base_estimates, lstsq
+from calib.diagnosis.problem import Fit, Problem, base_estimates, chi2_sf, lstsq
 from calib.diagnosis.selection import is_slow, renoise, stepwise, testable_keys
 
 def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:
@@ -280,7 +279,7 @@ def confirm_on_measured_noise(prob: Problem, final: Fit):
                      delta_hint=final.delta if "time_offset" in rest else None)
             c0, r0 = _chi2_measured(prob, f0)
             dfree = max(r1 - r0, 1) + (1 if prob.cand(k).kind in ("drift", "offset") else 0)
-            p = float(stats.chi2.sf(max(c0 - c2, 0.0), dfree))
+            p = float(chi2_sf(max(c0 - c2, 0.0), dfree))
             if p >= alpha and (worst is None or p > worst[1]):
                 worst = (k, p)
         if worst is None:

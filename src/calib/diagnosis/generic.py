@@ -38,13 +38,12 @@ import itertools
 import math
 
 import numpy as np
-from scipy import stats
 
 from calib.diagnosis.adequacy import holm, measured_factors
 from calib.diagnosis.fitting import fit
 from calib.diagnosis.geometry import AXES, SENSORS, TO_MODEL
 from calib.diagnosis.library import _reduce_term, sample_context
-from calib.diagnosis.problem import Fit, Problem, base_estimates
+from calib.diagnosis.problem import Fit, Problem, base_estimates, chi2_sf, f_sf
 
 #: periods of the sinusoids of the time family: the span divided by these
 PERIOD_DIVISORS = (1, 2, 3, 4, 5, 6)
@@ -218,7 +217,7 @@ def _vector_step_tests(prob: Problem, final: Fit, L, Q, r_perp) -> list[dict]:
             w0 = geom.windows[order[j]]
             out.append({"family": "step", "sensor": s, "axis": AXES[i],
                         "description": f"bias stepping at t = {geom.time_s[w0.i0]:.0f} s (before window {w0.label})",
-                        "chi2": c2, "dof": 1.0, "p": float(min(1.0, n_b * stats.chi2.sf(c2, 1))),
+                        "chi2": c2, "dof": 1.0, "p": float(min(1.0, n_b * chi2_sf(c2, 1))),
                         "rms": float("nan"), "unit": geom.units_out[s]})
     return out
 
@@ -264,7 +263,7 @@ def _stop_tests(prob: Problem, r_perp, final: Fit):
     if n_par < 3 or par <= 0:
         return None
     F = (perp / n_perp) / (par / n_par)
-    p = float(stats.f.sf(F, n_perp, n_par))
+    p = float(f_sf(F, n_perp, n_par))
     return {"family": "per static stop", "sensor": "accel", "axis": "",
             "description": "static stops scattering perpendicular to gravity more than along it (attitude errors "
                            "of the stops: the table did not stop where the record says)",
@@ -299,7 +298,7 @@ def open_search(prob: Problem, final: Fit, alpha: float | None = None) -> dict:
         si = SENSORS.index(fam["sensor"])
         m = prob.geom.obs["sensor"] == si
         tests.append({k_: fam[k_] for k_ in ("family", "sensor", "axis", "description")} |
-                     {"chi2": c2, "dof": float(k), "p": float(stats.chi2.sf(c2, k)),
+                     {"chi2": c2, "dof": float(k), "p": float(chi2_sf(c2, k)),
                       "rms": float(np.sqrt(np.mean(pred[m] ** 2))), "unit": prob.geom.units_out[fam["sensor"]]})
     tests += _vector_step_tests(prob, final, L, Q, r_perp)
     steps = norm_step_columns(prob)
@@ -321,7 +320,7 @@ def open_search(prob: Problem, final: Fit, alpha: float | None = None) -> dict:
             tests.append({"family": "step", "sensor": "accel", "axis": "",
                           "description": f"accelerometer biases stepping between static segments {j - 1} and {j}",
                           "chi2": c2, "dof": float(k),
-                          "p": float(min(1.0, len(steps) * stats.chi2.sf(c2, k))), "rms": float("nan"),
+                          "p": float(min(1.0, len(steps) * chi2_sf(c2, k))), "rms": float("nan"),
                           "unit": prob.geom.units_out["accel"]})
     st = _stop_tests(prob, r_perp, final) if prob.kind == "vector" else None
     if st is not None:

@@ -7,10 +7,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 from calib.diagnosis.geometry import AXES, ROWS, SENSORS
-from calib.diagnosis.problem import Fit, Problem, base_estimates
+from calib.diagnosis.problem import Fit, Problem, base_estimates, chi2_sf
 
 def block_table(prob: Problem, f: Fit):
     """chi-square of fit ``f`` per (sensor, axis) block, with its share of the total."""
@@ -97,7 +96,7 @@ def locate(prob: Problem, f: Fit) -> dict:
                 chi = float(c2 @ np.linalg.solve(covh[j:j + 2, j:j + 2], c2))
                 amp = float(np.hypot(*c2) * np.mean(sig[idx]))
                 harms.append({"harmonic": h, "amplitude": amp, "chi2_2dof": chi,
-                              "p": float(stats.chi2.sf(chi, 2))})
+                              "p": float(chi2_sf(chi, 2))})
             mean_z = float(coef[0] / math.sqrt(covh[0, 0]))
             ent = {"phase": ph, "sensor": s, "axis": AXES[a], "step_deg": step, "positions": len(wins),
                    "mean_residual": float(np.mean(r[idx])), "mean_z": mean_z, "harmonics": harms}
@@ -151,7 +150,7 @@ def locate(prob: Problem, f: Fit) -> dict:
             zv = np.array([v[0] / v[1] for v in vals])
             chi = float(np.sum(zv**2))
             ent[f"{kind}_chi2"] = chi
-            ent[f"{kind}_p"] = float(stats.chi2.sf(chi, zv.size))
+            ent[f"{kind}_p"] = float(chi2_sf(chi, zv.size))
             rt = np.array(rates)
             if np.ptp(rt) > 0:
                 w = 1.0 / np.array([v[1] for v in vals]) ** 2
@@ -191,7 +190,7 @@ def locate(prob: Problem, f: Fit) -> dict:
         rq = np.array([h["rate_deg_s"] for h in hq])
         chi = float(np.sum(zq**2))
         out["gyro_harmonics"] = {"windows": hq, "quadrature_chi2": chi, "n": int(zq.size),
-                                 "quadrature_p": float(stats.chi2.sf(chi, zq.size)),
+                                 "quadrature_p": float(chi2_sf(chi, zq.size)),
                                  "quadrature_vs_rate_corr": float(np.corrcoef(zq, rq)[0, 1]) if zq.size > 2 else 0.0}
         if out["gyro_harmonics"]["quadrature_p"] < 1e-3:
             findings.append((chi, f"gyro: the table-angle harmonics are phase-shifted (quadrature chi2 {chi:.1f} on "

@@ -6,12 +6,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 from calib.diagnosis.fitting import columns, fit
 from calib.diagnosis.geometry import SENSORS
 from calib.diagnosis.noise import covariance_blocks, profile_noise, reml_slow
-from calib.diagnosis.problem import Fit, Problem
+from calib.diagnosis.problem import Fit, Problem, chi2_sf
 from calib.diagnosis.vector import reml_design
 
 def testable_keys(prob: Problem):
@@ -153,7 +152,7 @@ def stepwise(prob: Problem, base: Fit | None = None):
             if dk <= 0:
                 continue
             dbic = dchi - dk * math.log(n)
-            p = float(stats.chi2.sf(max(dchi, 0.0), dk))
+            p = float(chi2_sf(max(dchi, 0.0), dk))
             table.append({"term": k, "delta_chi2": float(dchi), "delta_k": int(dk), "delta_bic": float(dbic),
                           "p_lrt": p, "fit": f, "tau": tau,
                           "statistic": "-2 ln LR, noise re-profiled" if is_slow(c) else "delta chi-square"})
