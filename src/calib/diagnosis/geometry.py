@@ -453,14 +453,23 @@ def reduced_inputs(geom: Geometry, delta_s=0.0, latitude_deg=None, gravity_m_s2=
     return geom.derived(key, lambda: _reduced_inputs(geom, delta_s, latitude_deg, gravity_m_s2, only_rotation))
 
 
+def window_ones(geom: Geometry):
+    """The bias rows W^T 1 of every window per sensor (lists over windows), computed once per geometry."""
+    def build():
+        one_a, one_g = [], []
+        for w in geom.windows:
+            one_a.append(w.W[:, :rows_of("accel", w)].sum(axis=0))
+            one_g.append(w.W[:, :rows_of("gyro", w)].sum(axis=0))
+        return one_a, one_g
+    return geom.derived("window_ones", build)
+
+
 def _reduced_inputs(geom: Geometry, delta_s, latitude_deg, gravity_m_s2, only_rotation):
-    xa, xg, one_a, one_g = [], [], [], []
+    xa, xg = [], []
+    one_a, one_g = window_ones(geom)
     ga, wg = site_vectors(geom, latitude_deg, gravity_m_s2)
-    for w in geom.windows:
-        ra, rg = rows_of("accel", w), rows_of("gyro", w)
-        sa, sg_ = w.W[:, :ra].sum(axis=0), w.W[:, :rg].sum(axis=0)
-        one_a.append(sa)
-        one_g.append(sg_)
+    for j, w in enumerate(geom.windows):
+        sa, sg_ = one_a[j], one_g[j]
         if only_rotation and w.kind != "rotation":
             xa.append(None)
             xg.append(None)
@@ -470,10 +479,170 @@ def _reduced_inputs(geom: Geometry, delta_s, latitude_deg, gravity_m_s2, only_ro
             xa.append(sa[:, None] * (C.T @ ga)[None, :])
             xg.append(sg_[:, None] * (C.T @ wg)[None, :])
             continue
+        if w.spline is not None:
+            angles = _angles0(geom, j) if float(delta_s) == 0.0 else None
+            ra, rg = rotation_reduced(geom, w, np.array([float(delta_s)]), ga, wg, angles=angles)
+            xa.append(ra[0])
+            xg.append(rg[0])
+            continue
         f, om, _, _ = window_inputs(geom, w, delta_s, latitude_deg, gravity_m_s2, need_accel=False)
-        xa.append(w.W[:, :ra].T @ f)
-        xg.append(w.W[:, :rg].T @ om)
+        xa.append(w.W[:, :rows_of("accel", w)].T @ f)
+        xg.append(w.W[:, :rows_of("gyro", w)].T @ om)
     return {"accel": xa, "gyro": xg}, {"accel": one_a, "gyro": one_g}
+
+
+def offset_grid_inputs(geom: Geometry, grid) -> np.ndarray:
+    """Reduced inputs of the rotation windows at every clock offset of ``grid``: (len(grid), m) with row d the
+    concatenation over sensors, then rotation windows, of ``reduced_inputs(geom, grid[d], only_rotation=True)``
+    raveled -- the same numbers, computed window by window for all offsets at once and once per geometry."""
+    grid = np.asarray(grid, dtype=float)
+
+    def build():
+        ga, wg = site_vectors(geom)
+        parts = {s: [] for s in SENSORS}
+        for w in geom.rotation:
+            if w.spline is None or w.attitude is None:
+                for s, x in zip(SENSORS, _reduced_one_by_one(geom, w, grid)):
+                    parts[s].append(x)
+                continue
+            xa, xg = rotation_reduced(geom, w, grid, ga, wg)
+            parts["accel"].append(xa.reshape(grid.size, -1))
+            parts["gyro"].append(xg.reshape(grid.size, -1))
+        return np.concatenate([p for s in SENSORS for p in parts[s]], axis=1)
+    return geom.derived(("offset_grid_inputs", tuple(grid.tolist())), build)
+
+
+def _reduced_one_by_one(geom, w, grid):
+    xa, xg = [], []
+    for d in grid:
+        f, om, _, _ = window_inputs(geom, w, float(d), need_accel=False)
+        xa.append((w.W[:, :rows_of("accel", w)].T @ f).ravel())
+        xg.append((w.W[:, :rows_of("gyro", w)].T @ om).ravel())
+    return np.array(xa), np.array(xg)
+
+
+# ------------------------------------------------------------------ rotation windows: compiled sample loops
+# The reduced inputs of a rotation window under a clock offset are sums over every sample of the window, and the
+# time-offset candidate needs them on a grid of offsets (calib.diagnosis.library.OffsetModel): ~3 million
+# sample evaluations of the table-angle spline, its cosine and sine. Two compiled loops do, per sample, exactly
+# the floating-point operations of :func:`window_inputs` in its order (the spline evaluated as scipy's PPoly
+# does: the interval with x[i] <= t < x[i+1], clamped to the end intervals, then c3 + c2 s + c1 s^2 + c0 s^3
+# summed in that order; no fused multiply-add), so the inputs are the same to the last bit
+# (tests/diagnosis/test_diagnosis_geometry.py); the reduction W^T f stays numpy's matrix product.
+def _angles_loop(kdt, deltas, s0, dt, bx, cc, out_c, out_s, out_rate):  # pragma: no cover - compiled
+    """cos / sin of the table angle at the sample mid-times and the sample-average rate, (D, n) each."""
+    m = bx.size
+    half = 0.5 * dt
+    inv = 1.0 / dt
+    x0 = bx[0]
+    th = np.empty(3)
+    for d in range(deltas.size):
+        for k in range(kdt.size):
+            tk = kdt[k] + deltas[d] + s0
+            for e in range(3):
+                if e == 0:
+                    x = tk
+                elif e == 1:
+                    x = tk + dt
+                else:
+                    x = tk + half
+                q = int(math.floor((x - x0) * inv))   # a first guess, corrected by the comparisons below
+                if q < 0:
+                    q = 0
+                elif q > m - 2:
+                    q = m - 2
+                while q > 0 and x < bx[q]:
+                    q -= 1
+                while q < m - 2 and x >= bx[q + 1]:
+                    q += 1
+                sx = x - bx[q]
+                res = cc[3, q] + cc[2, q] * sx
+                z = sx * sx
+                res = res + cc[1, q] * z
+                z = z * sx
+                res = res + cc[0, q] * z
+                th[e] = res
+            out_rate[d, k] = (th[1] - th[0]) / dt
+            out_c[d, k] = math.cos(th[2])
+            out_s[d, k] = math.sin(th[2])
+
+
+def _inputs_loop(c, s, rate, vf, uxf, af, vw, uxw, aw, u, deg_per_h, gyro_unit, f, om):  # pragma: no cover
+    """f and omega_ib (D, n, 3) from the angle terms: :func:`_rodrigues_T` and the table rate, elementwise."""
+    D, n = c.shape
+    for d in range(D):
+        for k in range(n):
+            cc = c[d, k]
+            ss = s[d, k]
+            omc = 1.0 - cc
+            rr = rate[d, k]
+            for j in range(3):
+                f[d, k, j] = vf[j] * cc - uxf[j] * ss + af[j] * omc
+                om[d, k, j] = (vw[j] * cc - uxw[j] * ss + aw[j] * omc) + rr * u[j] / deg_per_h * gyro_unit
+
+
+_KERNELS: list = []
+
+
+def _kernels():
+    """The two loops compiled by numba (cached on disk beside this module; imported and compiled on first use)."""
+    if not _KERNELS:
+        import numba
+
+        _KERNELS.extend(numba.njit(cache=True, nogil=True)(fn) for fn in (_angles_loop, _inputs_loop))
+    return _KERNELS
+
+
+#: samples x offsets evaluated per call (bounds the memory of a long rotation window)
+_CHUNK = 1 << 18
+
+
+def rotation_angles(geom: Geometry, w: Window, deltas):
+    """(cos theta, sin theta, rate) at the sample mid-times of rotation window ``w`` (with a table-angle spline)
+    under each clock offset of ``deltas``: arrays (len(deltas), n), as :func:`window_inputs` computes them."""
+    deltas = np.ascontiguousarray(deltas, dtype=float)
+    shape = (deltas.size, w.n)
+    c, s, r = np.empty(shape), np.empty(shape), np.empty(shape)
+    angles_loop, _ = _kernels()
+    angles_loop(np.arange(w.n) * geom.dt, deltas, float(geom.sample_start_s), float(geom.dt),
+                np.ascontiguousarray(w.spline.x, dtype=float), np.ascontiguousarray(w.spline.c, dtype=float),
+                c, s, r)
+    return c, s, r
+
+
+def _angles0(geom: Geometry, j: int):
+    """:func:`rotation_angles` of window ``j`` at zero offset, once per geometry (the base inputs and the
+    latitude and gravity differences all use them)."""
+    return geom.derived(("rotation_angles0", j), lambda: rotation_angles(geom, geom.windows[j], [0.0]))
+
+
+def _cross(u, v):
+    return np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
+
+
+def rotation_reduced(geom: Geometry, w: Window, deltas, ga, wg, angles=None):
+    """Reduced inputs (len(deltas), rows, 3) of accel and gyro of rotation window ``w`` under each clock offset,
+    for the site vectors ``ga``, ``wg`` (:func:`site_vectors`): the numbers of ``W^T`` :func:`window_inputs`,
+    offset by offset. ``angles``: :func:`rotation_angles` of these offsets when the caller has them."""
+    deltas = np.asarray(deltas, dtype=float)
+    _, inputs_loop = _kernels()
+    u, C0 = np.asarray(w.axis, float), w.attitude
+    vf, vw = C0.T @ ga, C0.T @ wg
+    consts = (vf, _cross(u, vf), (u @ vf) * u, vw, _cross(u, vw), (u @ vw) * u, u, float(earth.DEG_PER_H),
+              float(TO_MODEL[geom.units_in["gyro"]]))
+    ra, rg = rows_of("accel", w), rows_of("gyro", w)
+    Wa, Wg = w.W[:, :ra].T, w.W[:, :rg].T
+    xa, xg = np.empty((deltas.size, ra, 3)), np.empty((deltas.size, rg, 3))
+    step = max(1, _CHUNK // max(w.n, 1))
+    for d0 in range(0, deltas.size, step):
+        dd = deltas[d0:d0 + step]
+        c, s, r = angles if angles is not None and dd.size == deltas.size else rotation_angles(geom, w, dd)
+        f, om = np.empty((dd.size, w.n, 3)), np.empty((dd.size, w.n, 3))
+        inputs_loop(c, s, r, *consts, f, om)
+        for i in range(dd.size):
+            xa[d0 + i] = Wa @ f[i]
+            xg[d0 + i] = Wg @ om[i]
+    return xa, xg
 
 
 BASE_NAMES = tuple(f"{s}:{n}" for s in SENSORS for n in

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from calib.diagnosis.geometry import (AXES, SENSORS, TO_MODEL, Geometry, Window, reduced_inputs, rows_of,
-                                      stack_fast, window_inputs)
+from calib.diagnosis.geometry import (AXES, SENSORS, TO_MODEL, Geometry, Window, offset_grid_inputs, reduced_inputs,
+                                      rows_of, stack_fast, window_inputs)
 from calib.sim import effects
 
 #: bias-drift warm-up time constants tried (profile likelihood over a grid) [s]
@@ -126,6 +126,35 @@ def _reduce_term(geom: Geometry, ctx: SampleContext, d, sensor: str, Kdiag, conv
     return out
 
 
+def _axis_groups(entries):
+    """``entries`` (index tuples whose first index is the sensor axis) in groups with at most one entry per
+    axis, so that a group's columns come from one evaluation of the effect: the vector entries (0,), (1,), (2,)
+    together; matrix entries by their diagonal, (0, j), (1, j + 1), (2, j + 2) (mod 3)."""
+    groups = []
+    for e in entries:
+        for g in groups:
+            if all(x[0] != e[0] for x in g) and (len(e) == 1 or all((x[1] - x[0]) % 3 == (e[1] - e[0]) % 3
+                                                                     for x in g)):
+                g.append(e)
+                break
+        else:
+            groups.append([e])
+    return groups
+
+
+def _split_axes(geom: Geometry, col: np.ndarray, sensor: str, axes_set) -> list:
+    """One column per sensor axis in ``axes_set`` from an observation column holding several axes: axis i's
+    observations kept, every other observation zero (what a unit parameter on axis i alone gives)."""
+    si = SENSORS.index(sensor)
+    out = []
+    for a in axes_set:
+        c = np.zeros_like(col)
+        blk = geom.obs["blocks"][(si, a)]
+        c[blk] = col[blk]
+        out.append(c)
+    return out
+
+
 def is_shape_parameter(key: str) -> bool:
     """Registry keys that set the shape of an effect (time constants, the reference temperature), not its
     size: they are neither zeroed for a unit column nor scaled with the magnitude."""
@@ -211,10 +240,12 @@ def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, off
     sctx = effects.SensorContext(ctx.t, ctx.f, ctx.w, y_a, y_g, ctx.w_nb, ctx.dw_nb, tctx, Emat["accel"],
                                  Emat["gyro"])
 
-    def column(eid, sensor, p):
+    def axis_columns(eid, sensor, p, axes_set):
+        """The observation columns of ``p`` with one unit parameter per sensor axis in ``axes_set`` (the effect's
+        term on axis i depends on axis i's parameters only, so one evaluation gives every axis its column)."""
         da, dg = effects.REGISTRY[eid].apply(sctx, p)
-        d = da if sensor == "accel" else dg
-        return _reduce_term(geom, ctx, d, sensor, Kd[sensor], conv[sensor])
+        return _split_axes(geom, _reduce_term(geom, ctx, da if sensor == "accel" else dg, sensor, Kd[sensor],
+                                              conv[sensor]), sensor, axes_set)
 
     for eid, sensor, layout in _SENSOR_EFFECTS:
         if only is not None and f"{eid}/{sensor}" not in only:
@@ -228,12 +259,16 @@ def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, off
                 entries = [(i, j) for i in range(3) for j in range(3)]
             else:
                 entries = [(i, j) for i in range(3) for j in range(3) if i != j]
-            for e in entries:
+            col_of = {}
+            for group in _axis_groups(entries):   # entries on distinct sensor axes: one evaluation per group
                 p = zero_params(eid)
                 arr = np.zeros(np.shape(effects.REGISTRY[eid].defaults[key]))
-                arr[e] = 1.0
+                for e in group:
+                    arr[e] = 1.0
                 p[key] = arr.tolist()
-                cols.append(column(eid, sensor, p))
+                col_of.update(zip(group, axis_columns(eid, sensor, p, [e[0] for e in group])))
+            for e in entries:
+                cols.append(col_of[e])
                 nm = key + "[" + ",".join(AXES[i] for i in e) + "]"
                 names.append(nm)
                 units.append(unit_of.get(key, ""))
@@ -260,23 +295,14 @@ def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, off
         units = [unit_of[wkey]] * 3 + [unit_of[skey]] * 3
         c = Candidate("bias_drift", sensor, names, units, list(AXES) * 2, kind="drift",
                       keys=[(wkey, (i,)) for i in range(3)] + [(skey, (i,)) for i in range(3)])
-        trend_cols = []
-        for i in range(3):
-            p = zero_params("bias_drift")
-            v = [0.0, 0.0, 0.0]
-            v[i] = 1.0
-            p[skey] = v
-            trend_cols.append(column("bias_drift", sensor, p))
+        p = zero_params("bias_drift")
+        p[skey] = [1.0, 1.0, 1.0]
+        trend_cols = axis_columns("bias_drift", sensor, p, range(3))
         for tau in DRIFT_TAUS:
-            cols = []
-            for i in range(3):
-                p = zero_params("bias_drift")
-                v = [0.0, 0.0, 0.0]
-                v[i] = 1.0
-                p[wkey] = v
-                p[tkey] = tau
-                cols.append(column("bias_drift", sensor, p))
-            c.S_by_tau[tau] = np.column_stack(cols + trend_cols)
+            p = zero_params("bias_drift")
+            p[wkey] = [1.0, 1.0, 1.0]
+            p[tkey] = tau
+            c.S_by_tau[tau] = np.column_stack(axis_columns("bias_drift", sensor, p, range(3)) + trend_cols)
         c.S = c.S_by_tau[900.0]
         cands.append(c)
 
@@ -310,11 +336,7 @@ def build_library(geom: Geometry, M: dict, b: dict, *, xr0=None, ones0=None, off
     if have_harm and geom.max_offset_s > 0:
         grid = np.arange(-geom.max_offset_s, geom.max_offset_s + 0.5 * offset_grid_step, offset_grid_step)
         rot_idx = [j for j, w in enumerate(geom.windows) if w.kind == "rotation"]
-        vals = []
-        for d in grid:
-            xr, _ = reduced_inputs(geom, delta_s=float(d), only_rotation=True)
-            vals.append(np.concatenate([np.concatenate([xr[s][j].ravel() for j in rot_idx]) for s in SENSORS]))
-        off.offset = OffsetModel(grid, np.array(vals), rot_idx, geom)
+        off.offset = OffsetModel(grid, offset_grid_inputs(geom, grid), rot_idx, geom)
         # first-order signature at 0 (for the absorption / angle analysis)
         d0 = off.offset.design_delta(0.0, base_M, deriv=1)
         off.S = d0[:, None]
