@@ -98,18 +98,29 @@ def test_geometry_reuse_gives_the_reports_of_a_fresh_set_up(tmp_path):
     assert json.dumps(reused, sort_keys=True) == json.dumps(fresh, sort_keys=True)   # NaN entries compare equal
 
 
-def test_skipping_absent_bounds_changes_nothing_else(tmp_path):
-    """The proof's per-seed runs skip the upper bounds of absent terms: every other part of the report is the
-    same as with them."""
+def test_skipping_absent_bounds_and_detail_changes_nothing_else(tmp_path):
+    """The proof's per-seed runs skip the upper bounds of absent terms and the report's detail (where the misfit
+    lies, absorbed fractions, angles of pairs without a found term, separations): every other part of the report
+    -- the verdict, the findings with their aliases and intervals, what the score reads -- is the same as with them,
+    and the angles kept are the full report's."""
     from calib.diagnosis import diagnose_dataset
 
     fs = FastSession({**SHORT, "effects": {"accel_cubic_nonlinearity": {"k3_ug_per_g3": [60.0, -40.0, 30.0]}},
                       "conceal": True}, tmp_path, physical=True)
     full, _ = diagnose_dataset(fs.dataset(21), None, {"figures": False}, path="p")
-    lean, _ = diagnose_dataset(fs.dataset(21), None, {"figures": False, "absent_bounds": False}, path="p")
-    assert full["absent"] and lean["absent"] is None
+    lean, _ = diagnose_dataset(fs.dataset(21), None, {"figures": False, "absent_bounds": False,
+                                                      "report_detail": False}, path="p")
+    assert full["found"] and full["absent"] and lean["absent"] is None
+    assert score(full, fs.truth_for(21), "single") == score(lean, fs.truth_for(21), "single")
+    found = {f["key"] for f in full["found"]}
+    kept = [a for a in full["identifiability"]["pairwise_angles_deg"] if {a["a"], a["b"]} & found]
+    assert kept and lean["identifiability"]["pairwise_angles_deg"] == kept
+    assert full["locate"]["summary"] and not lean["locate"]["summary"]
+    from calib.diagnosis import report_markdown
+    assert "## " in report_markdown(lean)       # a lean report still renders
     for r in (full, lean):
-        r.pop("absent"), r.pop("elapsed_s"), r.get("settings", {}).pop("absent_bounds", None)
+        r.pop("absent"), r.pop("elapsed_s"), r.pop("locate"), r.pop("identifiability")
+        r.get("settings", {}).pop("absent_bounds", None), r.get("settings", {}).pop("report_detail", None)
     assert json.dumps(lean, sort_keys=True) == json.dumps(full, sort_keys=True)
 
 

@@ -306,7 +306,10 @@ def analyse(prob: Problem) -> dict:
                 delta_hint=final.delta if "time_offset" in final.terms else None) if final.terms else base
     final = refine_signatures(prob, final)
     final, unconfirmed = confirm_on_measured_noise(prob, final)
-    info, angles = library_geometry(prob)
+    # report_detail false (the proof's per-seed runs, which score the verdict and the findings only): the angles the
+    # aliases of the found terms read, no absorbed fractions, separations or location of the misfit
+    detail = st.get("report_detail", True)
+    info, angles = library_geometry(prob, pairs_with=None if detail else set(final.terms))
     ang_map = {frozenset((a, b)): v for a, b, v in angles}
     groups = []
     for a, b, v in angles:
@@ -416,7 +419,7 @@ def analyse(prob: Problem) -> dict:
         reason = f"misfit remains{helped} that no term of the library explains: {where or 'see adequacy'}" + scatter
     separations = []
     tk = testable_keys(prob)
-    if prob.kind == "vector" and "latitude_error" in tk and "gyro_g_sensitivity/gyro" in tk:
+    if detail and prob.kind == "vector" and "latitude_error" in tk and "gyro_g_sensitivity/gyro" in tk:
         rot_rows = np.flatnonzero(np.array([prob.geom.windows[w].kind == "rotation" for w in o["window"]])
                                   & (o["row"] == 0))
         info_r, ang_r = library_geometry(prob, rows=rot_rows)
@@ -442,7 +445,7 @@ def analyse(prob: Problem) -> dict:
         "form_alternatives": rivals, "not_confirmed": unconfirmed,
         "degenerate_candidates": [{"key": k, "why": w} for k, w in prob.__dict__.get("degenerate", {}).items()],
         "goodness_of_fit": gof,
-        "locate": locate(prob, base),
+        "locate": locate(prob, base) if detail else {"summary": [], "not_computed": "setting report_detail: false"},
         "identifiability": {"candidates": info, "pairwise_angles_deg": [
             {"a": a, "b": b, "angle_deg": v} for a, b, v in sorted(angles, key=lambda x: x[2]) if np.isfinite(v)],
             "alias_groups_geometric": groups, "separations": separations},

@@ -96,9 +96,13 @@ def principal_angle_deg(A, B) -> float:
     return float(np.degrees(np.arccos(np.clip(s.max(), -1.0, 1.0))))
 
 
-def library_geometry(prob: Problem, rows=None, terms=()):
+def library_geometry(prob: Problem, rows=None, terms=(), pairs_with=None):
     """Absorbed fraction, visible rank and pairwise smallest principal angles of the testable candidates,
-    against the base model plus ``terms`` (whitened; optionally on a subset of observation ``rows``)."""
+    against the base model plus ``terms`` (whitened; optionally on a subset of observation ``rows``).
+    ``pairs_with``: only the angles of the pairs that hold one of these keys (and no absorbed fractions): what the
+    aliases of the found terms read, when the report is not to list the rest."""
+    if pairs_with is not None and not pairs_with:
+        return {}, []
     X = prob.X0
     extra = [columns(prob, k, {}) for k in terms if prob.cand(k).kind != "offset"]
     A = np.hstack([X] + extra) if extra else X
@@ -120,12 +124,16 @@ def library_geometry(prob: Problem, rows=None, terms=()):
         P = Sw - Q @ (Q.T @ Sw)
         vis = np.linalg.norm(P)
         bases[k] = visible_basis(prob, Q, k, rows=rows)
+        if pairs_with is not None:
+            continue
         info[k] = {"absorbed_fraction": float(1.0 - vis / nrm) if nrm > 0 else 1.0,
                    "visible_rank": int(bases[k].shape[1]), "n_parameters": int(c.p),
                    "determined_parameters": [c.names[j] for j in c.active] if c.kind != "offset" else c.names}
     angles = []
     for i, a in enumerate(keys):
         for b in keys[i + 1:]:
+            if pairs_with is not None and a not in pairs_with and b not in pairs_with:
+                continue
             ang = principal_angle_deg(bases[a], bases[b])
             angles.append((a, b, ang))
     return info, angles

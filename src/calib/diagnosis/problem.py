@@ -38,6 +38,10 @@ DEFAULT_SETTINGS = {
     "noise_record": None,        # long static record of the same unit: the slow noise of the adequacy tests
     "absent_bounds": True,       # 95 % upper bounds of the tested-and-absent terms (a refit per term; nothing
                                  # else in the report depends on them: the proof's per-seed runs skip them)
+    "report_detail": True,       # the parts of the report no verdict or finding depends on: where the misfit lies
+                                 # (locate), the absorbed fractions and the angles of pairs without a found term,
+                                 # the separations (the proof's per-seed runs, scored on verdicts and findings, skip
+                                 # them; a test shows the rest of a report unchanged)
 }
 
 

@@ -260,7 +260,8 @@ def _proof_worker(args):
             e2e = score(rep0, fsn.truth_path, kind)
         else:
             e2e = None
-        st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False, "absent_bounds": False}   # not scored
+        st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False, "absent_bounds": False,
+              "report_detail": False}   # not scored
         fig = Path(out_dir) / "figures" / f"residuals_{name}.png" if out_dir and scale == 1.0 else None
         rows, _ = _seed_rows(fsn, name, kind, seed_list, st, fig)
     fisher_bounds = None
@@ -308,7 +309,8 @@ def _power_worker(args):
     ``base_of``); each scale's library is built at its own first seed, as in :func:`_proof_worker`."""
     name, seed_list, settings, scales, effs, base, injection = args
     kind = PROOF_SESSIONS[name][0]
-    st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False, "absent_bounds": False}   # not scored
+    st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False, "absent_bounds": False,
+              "report_detail": False}   # not scored
     out, prev, prob_prev = [], None, None
     with tempfile.TemporaryDirectory(prefix="calib-power-") as tmp:
         for sc, eff in zip(scales, effs):
