@@ -258,27 +258,36 @@ def _at_least_two(text):
 
 
 def cmd_diagnose(a):
+    from calib.core import helper
     from calib.io import recording
 
-    # the recording and the noise record are checked in full (every sample) once, here, not again when loaded
-    with recording.reuse_validation():
-        return _diagnose(a)
+    # the recording and the noise record are checked in full (every sample) once, not again when loaded; the
+    # checks and the figures run in a helper process beside the command when the platform allows
+    with recording.reuse_validation(), helper.running() as h:
+        return _diagnose(a, h)
 
 
-def _diagnose(a):
-    from calib.diagnosis import diagnose
-
+def _diagnose(a, h=None):
     settings = None
     if a.settings:   # overrides of calib.diagnosis.DEFAULT_SETTINGS
         settings = load_mapping(a.settings)
     _output_dir(a.out)
+    checks = {}
+    if h is not None:   # the input checks start now, beside the import of the diagnosis
+        checks["recording"] = h.submit([("calib.cli:_input_check", (a.recording, a.force, "recording"))])
+        if a.noise_record:
+            checks["noise record"] = h.submit([("calib.cli:_input_check", (a.noise_record, a.force, "noise record"))])
+        if (settings or {}).get("figures", True):
+            h.submit([("calib.figures.diagnosis:warm_up", ())])   # the plotting library, loaded meanwhile
+    from calib.diagnosis import diagnose
+
     try:
-        _recording(a.recording, a.force)
+        _checked_input(a.recording, a.force, "recording", h, checks.get("recording"))
     except InputError as exc:
         _diagnose_refusal(a.recording, settings, a.out, exc)
         raise
     if a.noise_record:   # a long static record of the same unit: the measured slow noise of the adequacy tests
-        _recording(a.noise_record, a.force, "noise record")
+        _checked_input(a.noise_record, a.force, "noise record", h, checks.get("noise record"))
         settings = {**(settings or {}), "noise_record": str(a.noise_record)}
     intervals = None
     if a.fieldcal:   # the static intervals the field calibration used: one answer per file
@@ -292,6 +301,36 @@ def _diagnose(a):
                                             intervals=intervals, intervals_source=str(a.fieldcal or ""))
     emit(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
     return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 3)   # exit code: 3 inconclusive
+
+
+def _input_check(path, force, what):
+    """What :func:`_recording` checks, run in the helper process: ``(identity of the file before the check, its
+    header, the plausibility warnings)``; a refusal raises."""
+    from calib.io import recording
+    from calib.signal import plausibility
+
+    key = recording.identity(path)
+    h = recording.validate(input_file(path, what))
+    return key, h, list(plausibility.check_recording(path, h, force=force).warnings)
+
+
+def _checked_input(path, force, what, h=None, job=None):
+    """:func:`_recording` of ``path``, or its result from the helper's job: the file is then known as validated
+    (:func:`calib.io.recording.remember_validated`) and the warnings are printed as :func:`_recording` prints
+    them. A refusal in the helper (or a helper that failed) is checked again here, which raises exactly what the
+    command always raised."""
+    if h is None or job is None:
+        return _recording(path, force, what)
+    from calib.io import recording
+
+    try:
+        key, header, warnings = h.result(job)[0]
+    except Exception:  # noqa: BLE001 - the refusal itself comes from the check below
+        return _recording(path, force, what)
+    recording.remember_validated(key, header)
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    return header
 
 
 def _fieldcal_intervals(path):
@@ -507,9 +546,14 @@ def main(argv=None):
                    help="repetitions per magnitude for --limits (default 20)")
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
-    from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, IMU-TK, imucal)
-    formats.register(sub)
-    a = p.parse_args(argv)   # argparse's own usage errors exit 2
+    try:
+        with _signals():   # an interrupt while the sub-commands load: the same one line as during a command
+            from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, IMU-TK, imucal)
+            formats.register(sub)
+            a = p.parse_args(argv)   # argparse's own usage errors exit 2
+    except KeyboardInterrupt as exc:
+        _say(f"calib: interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'SIGINT'}; nothing written")
+        return getattr(exc, "exit_code", EXIT_SIGINT)
     return _dispatch(a)
 
 

@@ -168,67 +168,72 @@ def report_markdown(rep: dict) -> str:
     return "\n".join(L) + "\n"
 
 
+def residual_data(prob: Problem, fits, title="") -> dict:
+    """What the residual figure shows, as plain data (:func:`calib.figures.diagnosis.residual`)."""
+    o = prob.geom.obs
+    base, final = fits
+    return {"sensor": np.asarray(o["sensor"]), "row": np.asarray(o["row"]), "axis": np.asarray(o["axis"]),
+            "window": np.asarray(o["window"]), "before": np.asarray(base.resid, float),
+            "after": np.asarray(final.resid, float), "sigma": np.asarray(prob.sigma(), float),
+            "labels": [w.label for w in prob.geom.windows], "kind": prob.kind, "sensors": SENSORS,
+            "row_names": ROWS, "title": title}
+
+
+def allan_data(prob: Problem) -> list:
+    """What the Allan figure shows, as plain data: one ``(sensor, arrays)`` per sensor the diagnosis has."""
+    out = []
+    for s in SENSORS:
+        A = (prob.noise.allan.get(s) if prob.noise is not None else (prob.norm_allan if s == "accel" else None))
+        if A is not None:
+            out.append((s, {"tau": np.asarray(A.tau, float), "adev": np.asarray(A.adev, float),
+                            "lo": np.asarray(A.lo, float), "hi": np.asarray(A.hi, float),
+                            "edf": np.asarray(A.edf, float), "unit": A.unit, "confidence": float(A.confidence)}))
+    return out
+
+
 def residual_figure(prob: Problem, fits, path, title=""):
     """Standardised residuals (residual / sigma) per segment before and after, per sensor axis and row."""
-    from calib.figures import style as figures   # matplotlib with the project's rc settings: only when drawing
+    from calib.figures import diagnosis as figs, style   # matplotlib with the project's rc settings: only when drawing
 
-    plt = figures.plt
-    g, o = prob.geom, prob.geom.obs
-    sig = prob.sigma()
-    base, final = fits
-    rows = sorted({(si, r) for si, r in zip(o["sensor"], o["row"])})
-    fig, axs = plt.subplots(len(rows), 1, figsize=(10, 2.2 * len(rows)), sharex=True, squeeze=False)
-    labels = [w.label for w in g.windows]
-    for ax, (si, r) in zip(axs[:, 0], rows):
-        for a, col in zip(range(3), ("C0", "C1", "C2")):
-            m = (o["sensor"] == si) & (o["row"] == r) & (o["axis"] == a)
-            x = o["window"][m] + (a - 1) * 0.22
-            ax.plot(x, base.resid[m] / sig[m], "o", mfc="none", color=col, ms=4,
-                    label=f"{AXES[a]} before" if r == 0 else None)
-            ax.plot(x, final.resid[m] / sig[m], ".", color=col, ms=5, label=f"{AXES[a]} after" if r == 0 else None)
-        ax.axhline(0, color="k", lw=0.5)
-        for k in (-3, 3):
-            ax.axhline(k, color="k", lw=0.5, ls=":")
-        name = "norm residual" if prob.kind == "norm" else f"{SENSORS[si]} {ROWS[r]}"
-        ax.set_ylabel(f"{name}\n(residual / sigma)")
-    axs[0, 0].legend(ncol=6, fontsize=7, loc="upper right")
-    step = max(1, int(np.ceil(len(labels) / 40)))          # at most ~40 readable tick labels
-    ticks = list(range(0, len(labels), step))
-    axs[-1, 0].set_xticks(ticks)
-    axs[-1, 0].set_xticklabels([labels[i] for i in ticks], rotation=90, fontsize=7)
-    axs[-1, 0].set_xlabel("segment" + (f" (every {step}th labelled)" if step > 1 else ""))
-    fig.suptitle(title or "residuals before (open) and after (filled) the selected terms")
-    fig.tight_layout()
-    return figures.save(fig, path)
+    return style.save(figs.residual(residual_data(prob, fits, title)), path)
 
 
 def allan_figure(prob: Problem, path):
     """Allan deviation of the static segments per sensor, with its confidence band; only the sensors the
     diagnosis has (no blank panel); taus with fewer than 2 equivalent degrees of freedom are left out (their
     interval is wider than the plot)."""
-    from calib.figures import style as figures   # matplotlib with the project's rc settings: only when drawing
+    from calib.figures import diagnosis as figs, style   # matplotlib with the project's rc settings: only when drawing
 
-    plt = figures.plt
-    have = [(s, A) for s in SENSORS
-            for A in [prob.noise.allan.get(s) if prob.noise is not None else
-                      (prob.norm_allan if s == "accel" else None)] if A is not None]
-    fig, axs = plt.subplots(1, max(len(have), 1), figsize=(5 * max(len(have), 1), 4), squeeze=False)
-    if not have:
-        axs[0, 0].axis("off")
-        axs[0, 0].text(0.5, 0.5, "no static segments: no Allan deviation", ha="center", va="center")
-    for ax, (s, A) in zip(axs[0], have):
-        keep = np.asarray(A.edf) >= 2.0
-        ncol = np.asarray(A.adev).shape[1]
-        for a in range(min(3, ncol)):
-            line, = ax.loglog(A.tau[keep], A.adev[keep, a], "o-", ms=3, label=f"{AXES[a]}" if ncol > 1 else s)
-            ax.fill_between(A.tau[keep], A.lo[keep, a], A.hi[keep, a], color=line.get_color(), alpha=0.15,
-                            label=f"{int(round(100 * A.confidence))} % interval" if a == 0 else "_nolegend_")
-        ax.set_xlabel("tau [s]")
-        ax.set_ylabel(f"Allan deviation [{A.unit}]")
-        ax.set_title(f"{s} (pooled static segments)")
-        ax.legend()
-    fig.tight_layout()
-    return figures.save(fig, path)
+    return style.save(figs.allan(allan_data(prob)), path)
+
+
+#: the figures of a report: file name, kind (:data:`calib.figures.diagnosis.FIGURES`), data
+def _figure_jobs(prob: Problem, fits):
+    return [("residuals_before_after.png", "residual", residual_data(prob, fits)),
+            ("allan_deviation.png", "allan", allan_data(prob))]
+
+
+def write_figures(prob: Problem, fits, out_dir) -> list:
+    """The report's figures in ``out_dir``; drawn two at a time by the command's helper process when there is one
+    (:mod:`calib.core.helper`), the files written here in the same order either way."""
+    from calib.core import helper
+
+    out_dir = Path(out_dir)
+    jobs = _figure_jobs(prob, fits)
+    h = helper.current()
+    if h is not None:
+        from calib.figures.output import write_rendered
+
+        try:
+            rendered = h.result(h.submit([("calib.figures.diagnosis:render", (kind, data)) for _, kind, data in jobs]))
+        except helper.HelperError:   # the helper is gone (it writes nothing): drawn here instead
+            rendered = None
+        if rendered is not None:
+            return [str(write_rendered(out_dir / name, data, problems))
+                    for (name, _, _), (data, problems) in zip(jobs, rendered)]
+    from calib.figures import diagnosis as figs, style
+
+    return [str(style.save(figs.FIGURES[kind](data), out_dir / name)) for name, kind, data in jobs]
 
 
 def _report_header(path, st):
@@ -265,8 +270,7 @@ def build_report(prob: Problem, res: dict, path, st, figures_dir=None) -> dict:
     rep.update({k: v for k, v in res.items() if not k.startswith("_")})
     figs = []
     if figures_dir is not None and st.get("figures", True):
-        figs.append(str(residual_figure(prob, res["_fits"], Path(figures_dir) / "residuals_before_after.png")))
-        figs.append(str(allan_figure(prob, Path(figures_dir) / "allan_deviation.png")))
+        figs = write_figures(prob, res["_fits"], figures_dir)
     rep["figures"] = figs
     return rep
 

@@ -7,7 +7,7 @@ temporary name and renames.
 """
 from __future__ import annotations
 
-import os
+import io
 from pathlib import Path
 
 import matplotlib
@@ -15,6 +15,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from calib.figures.output import CHECK_ENV, FigureCheckError, check_mode, report_problems  # noqa: E402,F401
 from calib.io.atomic import atomic_path  # noqa: E402
 
 STYLE = {
@@ -33,15 +34,6 @@ _META = {
     ".svg": {"Date": None, "Creator": None},
     ".pdf": {"CreationDate": None, "ModDate": None, "Producer": None, "Creator": None},
 }
-
-
-#: ``CALIB_FIGURE_CHECK=strict``: :func:`save` refuses a figure that fails :func:`inspect` (the CI workflow
-#: runs so); ``warn`` (default): the problems are printed; ``off``: not looked at.
-CHECK_ENV = "CALIB_FIGURE_CHECK"
-
-
-class FigureCheckError(ValueError):
-    """A figure with empty panels, unlabelled axes or several series without a legend."""
 
 
 def auto_log(ax, values, which="y", min_ratio=10.0) -> str:
@@ -141,14 +133,12 @@ def save(fig, path) -> Path:
     The figure is first looked at by :func:`inspect` (see :data:`CHECK_ENV`)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    mode = os.environ.get(CHECK_ENV, "warn").lower()
+    mode = check_mode()
     if mode != "off":
         problems = inspect(fig)
         if problems and mode == "strict":
             plt.close(fig)
-            raise FigureCheckError(f"figure {path.name}: " + "; ".join(problems))
-        for p in problems:
-            print(f"figure {path.name}: {p}")
+        report_problems(path, problems)
     _drop_spent_layout_engine(fig)
     try:
         with atomic_path(path, suffix=suffix) as tmp, plt.rc_context(STYLE):
@@ -156,3 +146,22 @@ def save(fig, path) -> Path:
     finally:
         plt.close(fig)
     return path
+
+
+def render(fig, suffix: str = ".png"):
+    """``(bytes, problems)``: what :func:`save` would write for ``fig`` in format ``suffix``, and what
+    :func:`inspect` found (written by :func:`calib.figures.output.write_rendered`); closes the figure. In strict
+    mode a figure with problems is not rendered (``None``): it will be refused."""
+    suffix, mode = suffix.lower(), check_mode()
+    problems = inspect(fig) if mode != "off" else []
+    if problems and mode == "strict":
+        plt.close(fig)
+        return None, problems
+    _drop_spent_layout_engine(fig)
+    buf = io.BytesIO()
+    try:
+        with plt.rc_context(STYLE):
+            fig.savefig(buf, format=suffix[1:], metadata=_META.get(suffix))
+    finally:
+        plt.close(fig)
+    return buf.getvalue(), problems

@@ -340,7 +340,7 @@ def _check_fill(path, name, arr, fills, offset=0):
 _VALIDATED: dict | None = None
 
 
-def _identity(path):
+def identity(path):
     """What names one unchanged file: resolved path, device, inode, size, modification and change times
     (None when the file cannot be looked at; :func:`validate` then says why)."""
     try:
@@ -367,11 +367,19 @@ def reuse_validation():
             _VALIDATED = None
 
 
+def remember_validated(key, header: Header) -> None:
+    """Within :func:`reuse_validation`: the file of identity ``key`` (:func:`identity`, taken before its check)
+    passed :func:`validate` with ``header`` -- checked by another process of the same command (the helper of
+    ``calib diagnose``); a later :func:`validate` of the unchanged file returns it."""
+    if _VALIDATED is not None and key is not None:
+        _VALIDATED[key] = dataclasses.replace(header, attrs=dict(header.attrs))
+
+
 def validate(path) -> Header:
     """Full check of a recording: header (time coordinate included), segment table and every sample (read
     in chunks: NaN/Inf and masked / _FillValue samples are refused with their index)."""
     memo = _VALIDATED
-    key = _identity(path) if memo is not None else None   # taken before the check: a file changed since misses
+    key = identity(path) if memo is not None else None   # taken before the check: a file changed since misses
     if key is not None and key in memo:
         h = memo[key]
         return dataclasses.replace(h, attrs=dict(h.attrs))

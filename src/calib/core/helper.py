@@ -1,0 +1,291 @@
+"""A helper process beside one command: work that needs none of the command's state runs on the second core.
+
+``calib diagnose`` spends most of its first second importing the numerical libraries; meanwhile a forked helper
+checks the input files sample by sample, imports the plotting library, and later draws the figures -- two at a
+time, one in a forked grandchild -- while the command's own process owns every output file:
+
+* the helper writes nothing: a job returns its value (a figure as PNG bytes) to the command, which writes it
+  atomically as before (:mod:`calib.io.atomic`), so an interruption leaves no partial file whatever the helper
+  was doing;
+* a job's printed output is captured and returned with its value; the command prints it where it would have
+  appeared, so the terminal shows the same lines in the same order;
+* an exception in a job is raised again in the command (its traceback text attached as a note), so errors keep
+  their exit codes; a helper that dies is a :class:`HelperError` (exit 70, a bug);
+* the helper runs in its own process group (a Ctrl-C at the terminal reaches the command only) and ends with
+  the command: :meth:`Helper.close` terminates the group and reaps the helper on every path, including
+  SIGINT / SIGTERM of the command; if the command itself is killed, the helper sees its request pipe close and
+  exits.
+
+Jobs are named ``"module:function"`` and their arguments are pickled (plain data, not the command's objects).
+``CALIB_HELPER=off`` (or a platform without ``os.fork``) runs everything in the command's process, as before.
+"""
+from __future__ import annotations
+
+import contextlib
+import importlib
+import io
+import os
+import pickle
+import select
+import signal
+import struct
+import sys
+import traceback
+
+ENV = "CALIB_HELPER"
+_HEADER = struct.Struct("<Q")
+_CURRENT: list = [None]
+_SERVING: list = []   # in the helper: its two pipe ends (a grandchild closes them)
+
+
+class HelperError(RuntimeError):
+    """The helper process ended without answering (killed, out of memory): a bug or the environment."""
+
+
+def enabled() -> bool:
+    return hasattr(os, "fork") and os.environ.get(ENV, "on").strip().lower() not in ("off", "0", "no", "false")
+
+
+def current() -> "Helper | None":
+    """The helper of the running command, or None (then the caller does the work itself)."""
+    h = _CURRENT[0]
+    return h if h is not None and h.alive else None
+
+
+@contextlib.contextmanager
+def running():
+    """A :class:`Helper` for the block (None when disabled); closed and reaped when the block ends, however."""
+    if not enabled() or _CURRENT[0] is not None:
+        yield None
+        return
+    h = Helper()
+    _CURRENT[0] = h
+    try:
+        yield h
+    finally:
+        _CURRENT[0] = None
+        h.close()
+
+
+# ------------------------------------------------------------------------------------------------ wire format
+
+
+def _write_all(fd, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        n = os.write(fd, view)
+        view = view[n:]
+
+
+def _read_exact(fd, n: int) -> bytes | None:
+    chunks, left = [], n
+    while left:
+        b = os.read(fd, min(left, 1 << 20))
+        if not b:
+            return None
+        chunks.append(b)
+        left -= len(b)
+    return b"".join(chunks)
+
+
+def _frame(obj) -> bytes:
+    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    return _HEADER.pack(len(data)) + data
+
+
+def _recv(fd):
+    head = _read_exact(fd, _HEADER.size)
+    if head is None:
+        return None
+    body = _read_exact(fd, _HEADER.unpack(head)[0])
+    return None if body is None else pickle.loads(body)
+
+
+# ------------------------------------------------------------------------------------------------ the command side
+
+
+class Helper:
+    """The command's handle on its helper process (started by the constructor)."""
+
+    def __init__(self):
+        req_r, req_w = os.pipe()
+        rep_r, rep_w = os.pipe()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        pid = os.fork()
+        if pid == 0:   # the helper: never returns
+            _CURRENT[0] = None
+            os.close(req_w)
+            os.close(rep_r)
+            _serve(req_r, rep_w)
+        with contextlib.suppress(OSError):
+            os.setpgid(pid, pid)   # (the helper does it too: whichever runs first)
+        os.close(req_r)
+        os.close(rep_w)
+        self.pid, self._w, self._r = pid, req_w, rep_r
+        self._next, self._replies, self.alive = 0, {}, True
+
+    def submit(self, calls) -> int:
+        """Queue ``calls`` -- a list of ``(target, args)``, run at the same time when several -- and return the job
+        id whose :meth:`result` is the list of their values. Replies arriving meanwhile are read (no deadlock on
+        full pipes)."""
+        if not self.alive:
+            raise HelperError("the helper process has ended")
+        jid = self._next
+        self._next += 1
+        data = memoryview(_frame((jid, [(t, tuple(a)) for t, a in calls])))
+        while data:
+            rd, wr, _ = select.select([self._r], [self._w], [])
+            if rd:
+                self._read_one()
+            if wr:
+                try:
+                    n = os.write(self._w, data[:1 << 16])
+                except BrokenPipeError:
+                    status = self.close()
+                    raise HelperError(f"the helper process has ended ({_describe(status)})") from None
+                data = data[n:]
+        return jid
+
+    def result(self, jid):
+        """The values of job ``jid`` in the order of its calls (waits). A job's printed output is printed here;
+        its exception is raised here."""
+        while jid not in self._replies:
+            self._read_one()
+        outcomes = self._replies.pop(jid)
+        values = []
+        for ok, value, text in outcomes:
+            if text:
+                sys.stdout.write(text)
+            if not ok:
+                raise _exception(value)
+            values.append(value)
+        return values
+
+    def run(self, target, *args):
+        """One call, waited for."""
+        return self.result(self.submit([(target, args)]))[0]
+
+    def _read_one(self):
+        msg = _recv(self._r)
+        if msg is None:
+            status = self.close()
+            raise HelperError(f"the helper process ended without answering ({_describe(status)})")
+        self._replies[msg[0]] = msg[1]
+
+    def close(self):
+        """End the helper (and any grandchild drawing for it) and reap it; returns its wait status."""
+        if not self.alive:
+            return self._status
+        self.alive = False
+        for fd in (self._w, self._r):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        for kill in (os.kill, os.killpg):   # the helper, then its group (a grandchild drawing for it)
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                kill(self.pid, signal.SIGTERM)
+        while True:
+            try:
+                _, self._status = os.waitpid(self.pid, 0)
+                break
+            except InterruptedError:
+                continue
+            except ChildProcessError:
+                self._status = None
+                break
+        return self._status
+
+
+def _describe(status) -> str:
+    if status is None:
+        return "already reaped"
+    if os.WIFSIGNALED(status):
+        return f"killed by signal {os.WTERMSIG(status)}"
+    return f"exit status {os.WEXITSTATUS(status)}"
+
+
+def _exception(value) -> BaseException:
+    blob, name, text, tb = value
+    exc = None
+    if blob is not None:
+        with contextlib.suppress(Exception):
+            exc = pickle.loads(blob)
+    if not isinstance(exc, BaseException):
+        exc = HelperError(f"{name}: {text}")
+    with contextlib.suppress(Exception):
+        exc.add_note("raised in the helper process:\n" + tb)
+    return exc
+
+
+# ------------------------------------------------------------------------------------------------ the helper side
+
+
+def _serve(req_r, rep_w):
+    code = 0
+    _SERVING[:] = [req_r, rep_w]
+    try:
+        with contextlib.suppress(OSError):
+            os.setpgid(0, 0)   # its own group: the terminal's Ctrl-C goes to the command, which ends the helper
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        while True:
+            msg = _recv(req_r)
+            if msg is None:   # the command closed its end (or died): nothing more to do
+                break
+            jid, calls = msg
+            _write_all(rep_w, _frame((jid, _run_calls(calls))))
+    except BaseException:  # noqa: BLE001 - the command sees the pipe close and reports it
+        code = 1
+    finally:
+        os._exit(code)
+
+
+def _run_calls(calls):
+    """Run the calls, all but the first in forked grandchildren at the same time; outcomes in call order."""
+    kids = []
+    for target, args in calls[1:]:
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:
+            code = 0
+            try:
+                for fd in [r] + _SERVING:
+                    os.close(fd)
+                _write_all(w, _frame(_call(target, args)))
+            except BaseException:  # noqa: BLE001 - the helper sees the pipe close
+                code = 1
+            finally:
+                os._exit(code)
+        os.close(w)
+        kids.append((pid, r))
+    out = [_call(*calls[0])] if calls else []
+    for (target, _), (pid, r) in zip(calls[1:], kids):
+        got = _recv(r)
+        os.close(r)
+        _, status = os.waitpid(pid, 0)
+        if got is None:
+            got = (False, (None, "HelperError", f"{target}: the drawing process ended without answering "
+                                                f"({_describe(status)})", ""), "")
+        out.append(got)
+    return out
+
+
+def _call(target, args):
+    """(ok, value or exception record, printed text) of ``target(*args)``; stdout and stderr captured."""
+    buf = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+            mod, _, name = target.partition(":")
+            fn = importlib.import_module(mod)
+            for part in name.split("."):
+                fn = getattr(fn, part)
+            value = fn(*args)
+        return True, value, buf.getvalue()
+    except BaseException as exc:  # noqa: BLE001 - handed to the command, which raises it
+        try:
+            blob = pickle.dumps(exc, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.loads(blob)
+        except Exception:  # noqa: BLE001 - an exception that does not survive pickling: its text only
+            blob = None
+        return False, (blob, type(exc).__name__, " ".join(str(exc).split())[:300], traceback.format_exc()), \
+            buf.getvalue()

@@ -1,0 +1,96 @@
+"""The figures of ``calib diagnose`` drawn from plain data (arrays, strings): standardised residuals per segment
+before and after the selected terms, and the Allan deviation of the static segments.
+
+The data come from :mod:`calib.diagnosis.report` (``residual_data``, ``allan_data``); here only numpy and
+matplotlib are needed, so the figures can be drawn by the command's helper process (:mod:`calib.core.helper`)
+which never imports the diagnosis. :func:`render` returns what :func:`calib.figures.style.save` would write, as
+bytes, with the inspection's findings; :func:`calib.figures.output.write_rendered` writes it.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from calib.figures import style
+
+AXES = ("x", "y", "z")
+
+
+def residual(d: dict):
+    """Standardised residuals (residual / sigma) per segment before and after, per sensor axis and row."""
+    plt = style.plt
+    sensor, row, axis, window = (np.asarray(d[k]) for k in ("sensor", "row", "axis", "window"))
+    before, after, sig = (np.asarray(d[k], float) for k in ("before", "after", "sigma"))
+    labels = list(d["labels"])
+    rows = sorted({(si, r) for si, r in zip(sensor.tolist(), row.tolist())})
+    fig, axs = plt.subplots(len(rows), 1, figsize=(10, 2.2 * len(rows)), sharex=True, squeeze=False)
+    for ax, (si, r) in zip(axs[:, 0], rows):
+        for a, col in zip(range(3), ("C0", "C1", "C2")):
+            m = (sensor == si) & (row == r) & (axis == a)
+            x = window[m] + (a - 1) * 0.22
+            ax.plot(x, before[m] / sig[m], "o", mfc="none", color=col, ms=4,
+                    label=f"{AXES[a]} before" if r == 0 else None)
+            ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=f"{AXES[a]} after" if r == 0 else None)
+        ax.axhline(0, color="k", lw=0.5)
+        for k in (-3, 3):
+            ax.axhline(k, color="k", lw=0.5, ls=":")
+        name = "norm residual" if d["kind"] == "norm" else f"{d['sensors'][si]} {d['row_names'][r]}"
+        ax.set_ylabel(f"{name}\n(residual / sigma)")
+    axs[0, 0].legend(ncol=6, fontsize=7, loc="upper right")
+    step = max(1, int(np.ceil(len(labels) / 40)))          # at most ~40 readable tick labels
+    ticks = list(range(0, len(labels), step))
+    axs[-1, 0].set_xticks(ticks)
+    axs[-1, 0].set_xticklabels([labels[i] for i in ticks], rotation=90, fontsize=7)
+    axs[-1, 0].set_xlabel("segment" + (f" (every {step}th labelled)" if step > 1 else ""))
+    fig.suptitle(d["title"] or "residuals before (open) and after (filled) the selected terms")
+    fig.tight_layout()
+    return fig
+
+
+def allan(panels: list):
+    """Allan deviation of the static segments per sensor, with its confidence band; ``panels``: one
+    ``(sensor, dict(tau, adev, lo, hi, edf, unit, confidence))`` per sensor the diagnosis has (no blank panel);
+    taus with fewer than 2 equivalent degrees of freedom are left out (their interval is wider than the plot)."""
+    plt = style.plt
+    fig, axs = plt.subplots(1, max(len(panels), 1), figsize=(5 * max(len(panels), 1), 4), squeeze=False)
+    if not panels:
+        axs[0, 0].axis("off")
+        axs[0, 0].text(0.5, 0.5, "no static segments: no Allan deviation", ha="center", va="center")
+    for ax, (s, A) in zip(axs[0], panels):
+        tau, adev, lo, hi = (np.asarray(A[k], float) for k in ("tau", "adev", "lo", "hi"))
+        keep = np.asarray(A["edf"]) >= 2.0
+        ncol = adev.shape[1]
+        for a in range(min(3, ncol)):
+            line, = ax.loglog(tau[keep], adev[keep, a], "o-", ms=3, label=f"{AXES[a]}" if ncol > 1 else s)
+            ax.fill_between(tau[keep], lo[keep, a], hi[keep, a], color=line.get_color(), alpha=0.15,
+                            label=f"{int(round(100 * A['confidence']))} % interval" if a == 0 else "_nolegend_")
+        ax.set_xlabel("tau [s]")
+        ax.set_ylabel(f"Allan deviation [{A['unit']}]")
+        ax.set_title(f"{s} (pooled static segments)")
+        ax.legend()
+    fig.tight_layout()
+    return fig
+
+
+FIGURES = {"residual": residual, "allan": allan}
+
+
+def render(kind: str, data, suffix: str = ".png"):
+    """``(bytes or None, problems)`` of figure ``kind`` drawn from ``data`` (:func:`calib.figures.style.render`)."""
+    return style.render(FIGURES[kind](data), suffix)
+
+
+def warm_up() -> None:
+    """Load what the first figures of a process load -- fonts, the mathtext parser and the log-axis tick labels
+    of many decades, marker paths, the text layout at both resolutions -- by rendering both kinds once from made-up
+    data (discarded), so that the real ones cost only their own drawing. Caches only: the same bytes after it."""
+    tau = 0.01 * 2.0 ** np.arange(16)
+    panel = {"tau": tau, "adev": np.outer(1.0 / np.sqrt(tau), [1e-3, 1e1, 1e5]), "edf": np.full(tau.size, 9.0),
+             "unit": "count s-1", "confidence": 0.95}
+    panel["lo"], panel["hi"] = 0.8 * panel["adev"], 1.25 * panel["adev"]
+    render("allan", [("accel", panel), ("gyro", {**panel, "adev": panel["adev"][:, ::-1]})])
+    n = 24
+    idx = np.arange(n)
+    render("residual", {"sensor": idx % 2, "row": np.zeros(n, int), "axis": idx % 3, "window": idx // 3,
+                        "before": np.sin(idx), "after": np.cos(idx), "sigma": np.ones(n),
+                        "labels": [f"P1-POS{i}" for i in range(n // 3)], "kind": "vector",
+                        "sensors": ("accel", "gyro"), "row_names": ("mean", "cos", "sin"), "title": ""})

@@ -1,0 +1,157 @@
+"""The helper process of ``calib diagnose`` (calib.core.helper): the input checks and the figures run beside the
+command, which alone writes files. Same outputs with and without it, the plotting library never loaded by the
+command itself, exceptions and printed lines handed back, and no process or partial file left behind whatever
+ends the command."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from calib import cli
+from calib.core import helper
+from calib.sim import simulator
+
+ROOT = Path(__file__).resolve().parents[2]
+SHORT_SESSION = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    return simulator.simulate_calibration_session(SHORT_SESSION, 11, tmp_path_factory.mktemp("helper") / "s.nc")
+
+
+def _reaped(pid) -> bool:
+    try:
+        os.waitpid(pid, os.WNOHANG)
+    except ChildProcessError:
+        return True
+    return False
+
+
+def test_jobs_values_prints_exceptions_and_parallel_calls(capsys):
+    with helper.running() as h:
+        assert h is not None and helper.current() is h
+        assert h.run("os:getpid") == h.pid != os.getpid()
+        pids = h.result(h.submit([("os:getpid", ()), ("os:getpid", ())]))
+        assert pids[0] == h.pid and pids[1] not in (h.pid, os.getpid())   # the second call in a grandchild
+        assert h.run("builtins:print", "a line the job printed") is None
+        assert capsys.readouterr().out == "a line the job printed\n"   # printed where the command waits for it
+        with pytest.raises(json.JSONDecodeError) as ei:
+            h.run("json:loads", "{")
+        assert any("raised in the helper process" in n for n in ei.value.__notes__)
+        pid = h.pid
+    assert helper.current() is None and _reaped(pid)
+
+
+def test_a_helper_that_died_is_a_helper_error():
+    with helper.running() as h:
+        os.kill(h.pid, signal.SIGKILL)
+        with pytest.raises(helper.HelperError, match="killed by signal 9"):
+            h.run("os:getpid")
+        assert helper.current() is None and _reaped(h.pid)
+
+
+def test_off_switch(monkeypatch):
+    monkeypatch.setenv(helper.ENV, "off")
+    with helper.running() as h:
+        assert h is None and helper.current() is None
+
+
+def test_same_outputs_with_and_without_the_helper(tmp_path, monkeypatch, noise_record, capsys):
+    rec = simulator.simulate_calibration_session(SHORT_SESSION, 12, tmp_path / "s.nc")
+    outs = {}
+    for mode in ("off", "on"):
+        monkeypatch.setenv(helper.ENV, mode)
+        out = tmp_path / mode
+        assert cli.main(["diagnose", str(rec), "--noise-record", noise_record, "--out", str(out)]) in (0, 1, 3)
+        outs[mode] = {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+    capsys.readouterr()
+    assert sorted(outs["on"]) == ["allan_deviation.png", "report.json", "report.md", "residuals_before_after.png"]
+    for name, data in outs["off"].items():
+        assert outs["on"][name] == data.replace(str(tmp_path / "off").encode(), str(tmp_path / "on").encode()), name
+
+
+def test_figure_refused_in_strict_mode_through_the_helper(tmp_path, monkeypatch, session, capsys):
+    """A figure that fails the inspection in strict mode: refused with the same one line, nothing written."""
+    from calib.figures import style
+
+    monkeypatch.setenv(style.CHECK_ENV, "strict")
+    monkeypatch.setattr(style, "inspect", lambda fig: ["panel 1 is empty (draw in it or switch it off)"])
+    assert cli.main(["diagnose", str(session), "--out", str(tmp_path)]) == 2   # a FigureCheckError: a ValueError
+    err = capsys.readouterr().err
+    assert "calib diagnose: error: figure residuals_before_after.png: panel 1 is empty" in err
+    assert "Traceback" not in err and sorted(os.listdir(tmp_path)) == []
+
+
+def test_the_command_never_loads_matplotlib(tmp_path, session):
+    code = ("import sys\nfrom calib import cli\n"
+            f"rc = cli.main(['diagnose', r'{session}', '--out', r'{tmp_path}'])\n"
+            "print(rc, 'matplotlib' in sys.modules)\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert r.stdout.split()[-2:] == ["3", "False"] or r.stdout.split()[-2:] in (["0", "False"], ["1", "False"]), \
+        r.stdout + r.stderr
+    assert (tmp_path / "residuals_before_after.png").exists() and (tmp_path / "allan_deviation.png").exists()
+
+
+def _session_processes(sid) -> list:
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[3]) == sid and fields[0] != "Z":
+                out.append(int(d.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+@pytest.mark.parametrize("delay", [0.0, 1.0, 2.5])
+def test_a_signal_leaves_no_process_and_no_partial_file(tmp_path, session, signum, code, delay):
+    """SIGTERM to the command, or SIGINT to its process group (a Ctrl-C at the terminal), at several moments after
+    the helper started: the command exits with its code (or has finished), nothing of the helper is left running,
+    no temporary file is left, and the earlier report stays unless a complete new one replaced it."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.json").write_text("earlier report\n")
+    proc = subprocess.Popen([sys.executable, "-m", "calib.cli", "diagnose", str(session), "--out", str(out)],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and len(_session_processes(proc.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)   # until the helper runs
+        time.sleep(delay)
+        if proc.poll() is None:
+            if signum == signal.SIGINT:
+                os.killpg(proc.pid, signum)
+            else:
+                proc.send_signal(signum)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    deadline = time.monotonic() + 10
+    while _session_processes(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert _session_processes(proc.pid) == []
+    # -2 for SIGINT: CPython itself sometimes ends a process whose handled Ctrl-C arrived during the start-up
+    # imports by SIGINT instead of 130 (seen without the helper too, ~1 in 15); the message is the same
+    assert proc.returncode in (code, 0, 1, 3) + ((-2,) if signum == signal.SIGINT else ()), err
+    assert "Traceback" not in err
+    names = sorted(os.listdir(out))
+    assert not [n for n in names if n.startswith(".") or n.endswith(".part")], names
+    if proc.returncode not in (0, 1, 3):
+        assert "interrupted by" in err
+    report = (out / "report.json").read_text()
+    assert report == "earlier report\n" or json.loads(report)["format"] == "calib-diagnosis-1"
