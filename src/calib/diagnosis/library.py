@@ -74,6 +74,7 @@ class SampleContext:
     temperature: np.ndarray | None
     slices: list
     Wsub: list
+    plans: dict = field(default_factory=dict, repr=False, compare=False)   # _reduce_term's, per sensor
 
 
 def window_nodes(geom: Geometry, w: Window):
@@ -116,14 +117,23 @@ def _sample_context(geom: Geometry) -> SampleContext:
 def _reduce_term(geom: Geometry, ctx: SampleContext, d, sensor: str, Kdiag, conv) -> np.ndarray:
     """Observation column (n_obs,) of a per-sample input-referred term d (n, 3) [registry units] of ``sensor``:
     output change K_i d_i conv, reduced per window (zeros for the other sensor's observations)."""
-    out = np.zeros(geom.obs["n"])
-    si = SENSORS.index(sensor)
+    views, blk = _reduce_plan(geom, ctx, sensor)
     dd = d * (Kdiag * conv)[None, :]
-    red = [ctx.Wsub[j][:, :rows_of(sensor, w)].T @ dd[ctx.slices[j]] for j, w in enumerate(geom.windows)]
-    vec = np.concatenate([np.concatenate([r[:, a] for r in red]) for a in range(3)])
-    blk = np.concatenate([geom.obs["blocks"][(si, a)] for a in range(3)])
-    out[blk] = vec
+    red = np.concatenate([Wt @ dd[sl] for Wt, sl in views])   # (rows of all windows, 3 axes)
+    out = np.zeros(geom.obs["n"])
+    out[blk] = red.T.ravel()                                   # axis by axis, windows in order
     return out
+
+
+def _reduce_plan(geom: Geometry, ctx: SampleContext, sensor: str):
+    """Per window the transposed reduction weights at its nodes and its slice of the context, and the observation
+    indices of the sensor's three axes: fixed by the geometry, so made once per context and sensor."""
+    key = (id(geom), sensor)
+    if key not in ctx.plans:
+        si = SENSORS.index(sensor)
+        views = [(ctx.Wsub[j][:, :rows_of(sensor, w)].T, ctx.slices[j]) for j, w in enumerate(geom.windows)]
+        ctx.plans[key] = (views, np.concatenate([geom.obs["blocks"][(si, a)] for a in range(3)]))
+    return ctx.plans[key]
 
 
 def _axis_groups(entries):
