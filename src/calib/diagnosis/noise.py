@@ -177,26 +177,62 @@ def slow_structure(parts, geom, sensor, tc, cache=None):
 
 
 @numba.njit(cache=True, nogil=True)
-def _weighted_gram(w, X, y):
-    """``X^T W_g X`` and ``X^T W_g y`` for every row g of the weights ``w`` (G, m), ``W_g = diag(w[g])``.
-
-    Every sum over m is taken in increasing m with the products formed as ``(w x_i) x_j``, the order in which
-    ``numpy.einsum("gm,mi,mj->gij", w, X, X)`` (and ``"gm,mi,m->gi"``) sums: the same numbers to the bit (the
-    profile likelihood of :func:`profile_noise` differences large sums of squares, so its rounding is kept as it
-    was), several times faster for the grids of the profile."""
-    G, m = w.shape
-    k = X.shape[1]
-    XtWX = np.zeros((G, k, k))
-    XtWy = np.zeros((G, k))
+def _chol_grid(A, B, yy, reml, rr, ld):  # pragma: no cover - compiled
+    """The design-dependent terms of one axis block in the profile likelihood of :func:`profile_noise`, for every
+    grid point g: ``rr[g] += y' W y - y' W X (X' W X)^-1 X' W y`` and, for REML, ``ld[g] += ln det X' W X``, from
+    the weighted Gram matrices ``A[g]`` (lower triangle, row by row: r (r + 1) / 2 entries), ``B[g] = X' W y`` and
+    ``yy[g] = y' W y`` (``W`` the grid point's weights): the Cholesky factor of each Gram matrix and a forward
+    solve."""
+    G, r = B.shape
+    L = np.empty((r, r))
+    z = np.empty(r)
     for g in range(G):
-        for r in range(m):
-            wr = w[g, r]
-            for i in range(k):
-                a = wr * X[r, i]
-                for j in range(k):
-                    XtWX[g, i, j] += a * X[r, j]
-                XtWy[g, i] += a * y[r]
-    return XtWX, XtWy
+        t = 0
+        for p in range(r):
+            for q in range(p + 1):
+                L[p, q] = A[g, t]
+                t += 1
+        logdet = 0.0
+        zz = 0.0
+        for p in range(r):                      # Cholesky A = L L' in place (lower), then L z = b
+            for q in range(p + 1):
+                acc = L[p, q]
+                for k in range(q):
+                    acc -= L[p, k] * L[q, k]
+                if p == q:
+                    L[p, p] = math.sqrt(acc) if acc > 0.0 else 1e-300
+                else:
+                    L[p, q] = acc / L[q, q]
+            acc = B[g, p]
+            for k in range(p):
+                acc -= L[p, k] * z[k]
+            z[p] = acc / L[p, p]
+            zz += z[p] * z[p]
+            logdet += 2.0 * math.log(L[p, p])
+        rr[g] += yy[g] - zz
+        if reml:
+            ld[g] += logdet
+
+
+#: the relative variances of the slow part tried by :func:`profile_noise`, in units of 1 / max(lam) (and rho = 0)
+RHO_GRID = np.logspace(-4, 3, 71)
+_TRIL: dict = {}
+
+
+def _tril(r: int):
+    """``numpy.tril_indices(r)`` (kept per r)."""
+    if r not in _TRIL:
+        _TRIL[r] = np.tril_indices(r)
+    return _TRIL[r]
+
+
+def _grid_weights(noise: NoiseFit, key, lam, rho):
+    """Weights ``1 / (1 + rho_g lam_i)`` (G, m) of a block's eigen-coordinates at every grid point and their
+    ``sum_i ln(1 + rho_g lam_i)`` (G,): the design-independent part of the profile, kept with the noise shape."""
+    if key not in noise.shape_cache:
+        d = 1.0 + rho[:, None] * lam[None, :]
+        noise.shape_cache[key] = (1.0 / d, np.sum(np.log(d), axis=1))
+    return noise.shape_cache[key]
 
 
 def shape_factor(noise: NoiseFit, parts, sensor: str, a: int) -> np.ndarray:
@@ -262,28 +298,33 @@ def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=
             y1 = solve_lower(L0, y[idx])
             U, sv, _ = np.linalg.svd(X1, full_matrices=False)
             X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
+            y1 = y1 - X1 @ (X1.T @ y1)
+            y1 = y1 - X1 @ (X1.T @ y1)
             pre.append((a, X1, y1))
         m_tot = sum(p[1].shape[0] for p in pre)
         nfree = sum(p[1].shape[0] - (p[1].shape[1] if method == "reml" else 0) for p in pre)
         best, white = None, None
         for tc in tcs:
-            rr_t, ld_t = 0.0, 0.0
+            rr_t, ld_t = None, None
             rho = None
             for a, X1, y1 in pre:
                 _, lam, V = shape_eig(geom, noise, parts, s, a, tc, cache)
                 if rho is None:
+                    a_rho = a
                     scale = 1.0 / max(lam.max(), 1e-300)
-                    rho = np.concatenate([[0.0], scale * np.logspace(-4, 3, 71)])
+                    rho = np.concatenate([[0.0], scale * RHO_GRID])
+                if rr_t is None:
+                    rr_t, ld_t = np.zeros(rho.size), np.zeros(rho.size)
+                nq = (float(noise.N_shape[s][a]), float(noise.Q_shape[s][a]))
+                W, lsum = _grid_weights(noise, ("grid", s, a, tc, a_rho) + nq, lam, rho)
                 Xt, yt = V.T @ X1, V.T @ y1
-                d = 1.0 + rho[:, None] * lam[None, :]
-                w = 1.0 / d
-                XtWX, XtWy = _weighted_gram(w, np.ascontiguousarray(Xt), yt)
-                yWy = np.einsum("gm,m->g", w, yt * yt)
-                sol = np.linalg.solve(XtWX, XtWy[..., None])[..., 0]
-                rr_t = rr_t + (yWy - np.einsum("gi,gi->g", sol, XtWy))
-                ld_t = ld_t + np.sum(np.log(d), axis=1)
-                if method == "reml":
-                    ld_t = ld_t + np.linalg.slogdet(XtWX)[1]
+                r = Xt.shape[1]
+                ti, tj = _tril(r)
+                # the weighted Gram matrices of every grid point in one product: W (G, m) times the rows' outer
+                # products (m, r (r + 1) / 2)
+                _chol_grid(W @ (Xt[:, ti] * Xt[:, tj]), W @ (Xt * yt[:, None]), W @ (yt * yt), method == "reml",
+                           rr_t, ld_t)
+                ld_t += lsum
             lam_hat = rr_t / nfree
             nll = nfree * np.log(lam_hat) + ld_t
             if grid_out is not None:
