@@ -49,12 +49,12 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_colu
         return _fit_drift_taus(prob, terms, taus, delta, missing, offset_column)
     d = float(delta or 0.0) if has_off else 0.0
     yw = prob.wcache("y", lambda: prob.y)
-    cols, wcols, slices = _linear_design(prob, terms, taus, d if has_off else None)
+    cols, wcols, slices, base = _linear_design(prob, terms, taus, d if has_off else None)
     active = {k: prob.cand(k).active for k in slices}
     names = list(prob.base_names) + [f"{k}:{prob.cand(k).names[j]}" for k in slices for j in prob.cand(k).active]
     pos = sum(c.shape[1] for c in cols)
     nonlinear_columns = offset_column and (has_off or drift_keys)
-    th0 = lstsq(np.hstack(wcols), yw, want_cov=False)[0] if nonlinear_columns else None
+    th0 = _solve(prob, base, cols, wcols, yw, want_cov=False)[0] if nonlinear_columns else None
     for k in drift_keys if offset_column else ():
         # Gauss-Newton column of ln(tau) at the profiled grid value (amplitudes of a first solve): the joint
         # covariance then includes the time constant, so the warm-up intervals are not conditional on it
@@ -76,9 +76,7 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_colu
         slices["time_offset"] = slice(pos, pos + 1)
         active["time_offset"] = np.array([0])
         names.append("time_offset:offset_s")
-    Aw = np.hstack(wcols)
-    theta, cov, rank = lstsq(Aw, yw)
-    rw = yw - Aw @ theta
+    theta, cov, rank, rw = _solve(prob, base, cols, wcols, yw)
     A = np.hstack(cols)
     resid = prob.y - A @ theta
     if has_off and offset_column:
@@ -91,17 +89,46 @@ def fit(prob: Problem, terms, *, delta=None, taus=None, keep_X=True, offset_colu
                active=active, X=A if keep_X else None)
 
 
+def _solve(prob: Problem, base, cols, wcols, yw, want_cov=True):
+    """Whitened least squares of the design ``cols`` (the base first, whitened extra columns ``wcols[1:]``):
+    ``(theta, cov, rank, whitened residual)``. With the base factorised block by block (``base``,
+    :class:`calib.diagnosis.problem.BaseQR`) only the extra columns are solved for; otherwise :func:`lstsq` of the
+    whole whitened design."""
+    extra = wcols[1:]
+    if base is not None:
+        Sw = np.hstack(extra) if extra else None
+        return base.solve(yw, Sw, want_cov=want_cov, yp=_y_perp(prob, base, yw))
+    if wcols[0] is None:
+        wcols = [prob.whiten(cols[0])] + extra
+    Aw = np.hstack(wcols)
+    theta, cov, rank = lstsq(Aw, yw, want_cov=want_cov)
+    return theta, cov, rank, yw - Aw @ theta
+
+
+def _y_perp(prob: Problem, base, yw):
+    """The whitened observations off the base (kept for the unpatched base, which every fit at zero offset shares)."""
+    c = prob.__dict__.setdefault("_wc", {})
+    if c.get("base_qr") is base:
+        if "y_perp" not in c:
+            c["y_perp"] = base.project(yw)
+        return c["y_perp"]
+    return base.project(yw)
+
+
 def _linear_design(prob: Problem, terms, taus, d):
-    """The columns of the linear part of a fit: ``[X, S_k...]`` unwhitened and whitened, and the slice of each
-    term. ``d``: the clock offset of the base design (None: no offset term, the base design as it is). The
-    whitened base design at zero offset and the whitened term columns are cached on the problem
-    (:meth:`Problem.wcache`: they depend on the noise model, fixed between re-estimates)."""
+    """The columns of the linear part of a fit: ``[X, S_k...]`` unwhitened and ``[Xw or None, S_k...]`` whitened,
+    the slice of each term and the base factorised block by block (None when it does not split: ``Xw`` is then
+    given). ``d``: the clock offset of the base design (None: no offset term, the base design as it is). The
+    whitened term columns and the factors of the unpatched base are cached on the problem (:meth:`Problem.wcache`:
+    they depend on the noise model, fixed between re-estimates)."""
     if d is not None:
         X = prob.cand("time_offset").offset.patch_design(prob.X0, d)
-        Xw = prob.whiten(X)
+        base = prob.base_qr(X)
+        Xw = None if base is not None else prob.whiten(X)
     else:
         X = prob.X0
-        Xw = prob.wcache("X0", lambda: prob.X0)
+        base = prob.base_qr()
+        Xw = None if base is not None else prob.wcache("X0", lambda: prob.X0)
     cols, wcols, slices = [X], [Xw], {}
     pos = X.shape[1]
     for k in terms:
@@ -114,7 +141,7 @@ def _linear_design(prob: Problem, terms, taus, d):
         wcols.append(prob.wcache(("S", k, tau), lambda: S))
         slices[k] = slice(pos, pos + S.shape[1])
         pos += S.shape[1]
-    return cols, wcols, slices
+    return cols, wcols, slices, base
 
 
 def profile_chi2(prob: Problem, terms, *, delta=None, taus=None) -> float:
@@ -126,11 +153,12 @@ def profile_chi2(prob: Problem, terms, *, delta=None, taus=None) -> float:
     has_off = "time_offset" in terms
     if (has_off and delta is None) or any(prob.cand(k).kind == "drift" and k not in taus for k in terms):
         return fit(prob, terms, delta=delta, taus=taus, offset_column=False).chi2   # a profile inside
-    _, wcols, _ = _linear_design(prob, terms, taus, float(delta or 0.0) if has_off else None)
-    Aw = np.hstack(wcols)
+    cols, wcols, _, base = _linear_design(prob, terms, taus, float(delta or 0.0) if has_off else None)
     yw = prob.wcache("y", lambda: prob.y)
-    theta, _, _ = lstsq(Aw, yw, want_cov=False)
-    rw = yw - Aw @ theta
+    if base is not None:
+        extra = wcols[1:]
+        return base.chi2(yw, np.hstack(extra) if extra else None, yp=_y_perp(prob, base, yw))
+    rw = _solve(prob, base, cols, wcols, yw, want_cov=False)[3]
     return float(rw @ rw)
 
 

@@ -28,9 +28,11 @@ def prepare_library(prob: Problem):
     the installation errors), or when its standard error with the base model exceeds ten times the effect's
     typical magnitude (registry default; dropped one at a time, worst first)."""
     st_rel = prob.settings["visible_rel"]
-    Xw = prob.whiten(prob.X0)
-    Q, _ = np.linalg.qr(Xw)
-    yw = prob.whiten(prob.y)
+    base = prob.base_qr()          # the base factorised block by block (None: the whole design at once)
+    if base is None:
+        Xw = prob.whiten(prob.X0)
+        Q, _ = np.linalg.qr(Xw)
+    yw = prob.wcache("y", lambda: prob.y)
     for c in prob.lib:
         if c.untestable or c.S is None:
             c.active = np.arange(0)
@@ -39,7 +41,7 @@ def prepare_library(prob: Problem):
             c.se0 = np.full(c.p, np.inf)
             continue
         Sw = prob.whiten(c.S)
-        P = Sw - Q @ (Q.T @ Sw)
+        P = base.project(Sw) if base is not None else Sw - Q @ (Q.T @ Sw)
         nrm = np.linalg.norm(Sw, axis=0)
         vis = np.linalg.norm(P, axis=0)
         c.visible = vis
@@ -57,9 +59,13 @@ def prepare_library(prob: Problem):
             c.active = np.array(sorted(keep), dtype=int)
             continue
         se = np.full(c.p, np.inf)
+        k0 = prob.X0.shape[1]
         while keep:
-            _, cov, _ = lstsq(np.hstack([Xw, Sw[:, keep]]), yw)
-            s = np.sqrt(np.clip(np.diag(cov)[Xw.shape[1]:], 0.0, None))
+            if base is not None:
+                cov = base.solve(yw, Sw[:, keep])[1]
+            else:
+                _, cov, _ = lstsq(np.hstack([Xw, Sw[:, keep]]), yw)
+            s = np.sqrt(np.clip(np.diag(cov)[k0:], 0.0, None))
             s[~np.isfinite(s) | (s == 0)] = np.inf
             ratio = s / scale[keep]
             se[:] = np.inf

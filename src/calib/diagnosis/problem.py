@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import special
 
+from calib.diagnosis import kernels
 from calib.diagnosis.blas import pivoted_qr, solve_lower, solve_tri
 from calib.diagnosis.geometry import BASE_NAMES, Geometry
 from calib.diagnosis.noise import NoiseFit
@@ -104,6 +105,29 @@ class Problem:
             c[name] = self.whiten(fn())
         return c[name]
 
+    def base_qr(self, X=None):
+        """The base design ``X`` (default: ``X0``, whose factors are kept until the noise model changes) whitened and
+        factorised block by block (:class:`BaseQR`); None when the base does not split into blocks or a block is rank
+        deficient (the fits then solve the whole design with :func:`lstsq`)."""
+        layout = base_blocks(self)
+        if layout is None:
+            return None
+        c = self.__dict__.setdefault("_wc", {})
+        if "Lpad" not in c:       # the blocks' Cholesky factors in one array (zero padded), for the compiled calls
+            mmax = int(layout[1].max())
+            Lpad = np.zeros((len(layout[0]), mmax, mmax))
+            for b, key in enumerate(self.geom.obs["blocks"]):
+                m = int(layout[1][b])
+                Lpad[b, :m, :m] = self.L[key]
+            c["Lpad"] = Lpad
+        if X is None:
+            if "base_qr" not in c:
+                c["base_qr"] = BaseQR(self.X0, c["Lpad"], layout, self.X0.shape[1])
+            b = c["base_qr"]
+        else:
+            b = BaseQR(X, c["Lpad"], layout, X.shape[1])
+        return b if b.full_rank else None
+
     def forget_whitened(self):
         """Drop the cached whitened quantities (after the noise model or the library changed)."""
         self.__dict__.pop("_wc", None)
@@ -186,3 +210,136 @@ def lstsq(Aw, yw, want_cov: bool = True):
     theta /= nrm
     cov /= np.outer(nrm, nrm)
     return theta, cov, rank
+
+
+# ----------------------------------------------------------------------------------------------------------
+# the base model eliminated block by block: every fit of the diagnosis is "base + a few columns"
+# ----------------------------------------------------------------------------------------------------------
+
+#: the rank cut of :func:`lstsq` on unit-norm columns (relative to the first pivot, whose norm is 1)
+RANK_TOL = 1e-9
+
+
+def base_blocks(prob: "Problem"):
+    """The block structure of the base design as ``(starts, sizes, cols)`` (int arrays: first row and number of rows
+    of every observation block -- sensor, axis --, and its base columns (blocks, c)) when every block is a run of
+    rows with base columns of its own, as many for each (the vector model: 3 inputs and a bias per block; the norm
+    model: one block), so that the base can be eliminated block by block; None otherwise. Geometry only (cached
+    on the problem)."""
+    got = prob.__dict__.get("_base_blocks", False)
+    if got is not False:
+        return got
+    starts, sizes, cols, used = [], [], [], np.zeros(prob.X0.shape[1], bool)
+    out = None
+    for key, idx in prob.geom.obs["blocks"].items():
+        idx = np.asarray(idx)
+        cb = np.flatnonzero(np.any(prob.X0[idx] != 0, axis=0))
+        if (not idx.size or np.any(np.diff(idx) != 1) or used[cb].any() or (cols and cb.size != cols[0].size)
+                or key != list(prob.geom.obs["blocks"])[len(starts)]):
+            break
+        used[cb] = True
+        starts.append(int(idx[0]))
+        sizes.append(int(idx.size))
+        cols.append(cb)
+    else:
+        if used.all() and sum(sizes) == prob.n and cols:
+            out = (np.array(starts, np.int64), np.array(sizes, np.int64), np.array(cols, np.int64))
+    prob.__dict__["_base_blocks"] = out
+    return out
+
+
+class BaseQR:
+    """The whitened base design factorised block by block (``B_b = Q_b R_b diag(n_b)``, unit-norm columns), so that
+    a fit of the base plus extra columns S solves only for S on what the base leaves (``P S``, ``P y``, P the
+    projection off the base) and recovers the base parameters block by block: the same estimates, covariance and
+    chi-square as :func:`lstsq` of the whole design (the normal equations of a partitioned least-squares problem),
+    at the cost of the extra columns. The factors are computed by one compiled call
+    (:func:`calib.diagnosis.kernels.whiten_factor_blocks`: the profile of the clock offset refactorises the patched
+    base at every offset it tries). ``full_rank``: False when a block is rank deficient at :data:`RANK_TOL` (then the
+    whole design goes through :func:`lstsq`)."""
+
+    def __init__(self, X, Lpad, layout, k):
+        starts, sizes, bcols = layout
+        nb, c = bcols.shape
+        self.k = int(k)
+        self.starts, self.sizes, self.bcols = starts, sizes, bcols
+        self.Q = np.zeros((nb, Lpad.shape[1], c))
+        self.R = np.zeros((nb, c, c))
+        self.nrm = np.ones((nb, c))
+        dmin = kernels.whiten_factor_blocks(np.ascontiguousarray(X, dtype=float), Lpad, starts, sizes, bcols,
+                                            self.Q, self.R, self.nrm)
+        self.full_rank = bool(dmin > RANK_TOL)
+
+    def project(self, A):
+        """``A`` ((n,) or (n, p)) less its part in the span of the base (block by block)."""
+        A = np.asarray(A, dtype=float)
+        A2 = A.reshape(A.shape[0], -1)
+        out = np.empty_like(A2)
+        kernels.project_blocks(self.Q, self.starts, self.sizes, np.ascontiguousarray(A2), out)
+        return out.reshape(A.shape)
+
+    def chi2(self, yw, Sw=None, yp=None) -> float:
+        """The chi-square of :meth:`solve` (``yw`` on ``[base, Sw]``) alone, by one compiled call; through
+        :meth:`solve` (pivoted, with its rank cut) when a column of ``Sw`` is nearly dependent."""
+        yp = self.project(yw) if yp is None else yp
+        if Sw is None or Sw.shape[1] == 0:
+            return float(yp @ yp)
+        nS = np.linalg.norm(Sw, axis=0)
+        nS[nS == 0] = 1.0
+        ss, dmin = kernels.residual_ss(self.project(Sw), nS, yp, 1e3 * RANK_TOL)
+        if dmin > 1e3 * RANK_TOL:
+            return float(ss)
+        rw = self.solve(yw, Sw, want_cov=False, yp=yp)[3]
+        return float(rw @ rw)
+
+    def solve(self, yw, Sw=None, want_cov: bool = True, yp=None):
+        """Least squares of ``yw`` on ``[base, Sw]`` (whitened): ``(theta, cov, rank, residual)``, theta ordered as
+        the base columns then those of ``Sw``; cov None when not wanted. ``yp``: ``project(yw)`` if known."""
+        k0 = self.k
+        p = 0 if Sw is None else Sw.shape[1]
+        yp = self.project(yw) if yp is None else yp
+        thS = np.zeros(p)
+        rankS = 0
+        covS = np.zeros((p, p))
+        if p:
+            Sp = self.project(Sw)
+            nS = np.linalg.norm(Sw, axis=0)
+            nS[nS == 0] = 1.0
+            Q, R, piv = pivoted_qr(Sp / nS)
+            d = np.abs(np.diag(R))
+            rankS = int(np.sum(d > RANK_TOL))
+            Rk = R[:rankS, :rankS]
+            z = solve_tri(Rk, Q[:, :rankS].T @ yp, lower=False)
+            thS[piv[:rankS]] = z
+            thS /= nS
+            if want_cov:
+                Ri = solve_tri(Rk, np.eye(rankS), lower=False)
+                covS[np.ix_(piv[:rankS], piv[:rankS])] = Ri @ Ri.T
+                covS /= np.outer(nS, nS)
+            resid = yp - Sp @ thS
+            rest = yw - Sw @ thS
+        else:
+            resid = yp
+            rest = yw
+        theta = np.zeros(k0 + p)
+        theta[k0:] = thS
+        cov = None
+        if want_cov:
+            cov = np.zeros((k0 + p, k0 + p))
+            cov[k0:, k0:] = covS
+            G = np.zeros((k0, p))
+        for b in range(self.bcols.shape[0]):
+            r0, m, cols = self.starts[b], self.sizes[b], self.bcols[b]
+            Q, R, nrm = self.Q[b, :m], self.R[b], self.nrm[b]
+            theta[cols] = solve_tri(R, Q.T @ rest[r0:r0 + m], lower=False) / nrm
+            if want_cov:
+                Ri = solve_tri(R, np.eye(R.shape[0]), lower=False) / nrm[:, None]
+                cov[np.ix_(cols, cols)] = Ri @ Ri.T
+                if p:
+                    G[cols] = Ri @ (Q.T @ Sw[r0:r0 + m])
+        if want_cov and p:
+            GC = G @ covS
+            cov[:k0, :k0] += GC @ G.T
+            cov[:k0, k0:] = -GC
+            cov[k0:, :k0] = -GC.T
+        return theta, cov, k0 + rankS, resid
