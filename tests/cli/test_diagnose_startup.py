@@ -30,6 +30,16 @@ def test_start_up_loads_no_plotting_and_no_importers():
                                                                         "calib.figures"))}
 
 
+def test_help_loads_no_numerical_library():
+    """``calib --help`` (and every usage error) answers before numpy, the netCDF libraries, scipy, numba or
+    matplotlib are loaded; the export formats it lists are calib.io.export_formats'."""
+    mods = _modules_after("from calib import cli\ntry:\n    cli.main(['--help'])\nexcept SystemExit:\n    pass")
+    assert not {m for m in mods if m.split(".")[0] in ("numpy", "xarray", "netCDF4", "scipy", "numba", "matplotlib")}
+    from calib.io import EXPORT_FORMATS, export_formats
+
+    assert export_formats.FORMATS == EXPORT_FORMATS
+
+
 def test_a_figure_is_drawn_with_the_project_style(tmp_path):
     """calib.signal.detect no longer loads matplotlib on import; its figure still gets the project's rc settings
     (calib.figures.style) before anything is drawn, and the same file twice."""

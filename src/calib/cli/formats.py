@@ -20,8 +20,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from calib.core.errors import InputError, input_file, load_mapping
 
 NOISE_FILES = ("noise.json", "noise.md", "allan.svg", "allan.png")
@@ -47,6 +45,8 @@ def _cli():
 def _static_check(acc_si, fs) -> str | None:
     """A warning when the record does not look static: the 1 s means of the specific force turn by more than 2
     degrees, or their norm changes by more than 2 %."""
+    import numpy as np
+
     w = max(1, int(round(fs)))
     nb = len(acc_si) // w
     if nb < 2:
@@ -208,6 +208,8 @@ GYRO_ATTRS = {"sample_kind": "rate", "units": "rad s-1", "long_name": "calibrate
 
 
 def _apply_in_memory(a, cal, h, fs, prov):
+    import numpy as np
+
     from calib.io import recording
 
     ds = recording.load(a.recording, validate_all=False)
@@ -226,6 +228,7 @@ def _apply_in_memory(a, cal, h, fs, prov):
 def _apply_chunked(a, cal, h, fs, prov):
     """Long recordings without a time coordinate: chunk by chunk (memory flat)."""
     import netCDF4
+    import numpy as np
 
     from calib.io import recording
 
@@ -252,7 +255,7 @@ def _apply_chunked(a, cal, h, fs, prov):
 
 def register(sub) -> None:
     """Add the ``noise``, ``export`` and ``apply`` sub-commands."""
-    from calib.io.export_formats import FORMATS
+    from calib.io import EXPORT_FORMATS as FORMATS   # (the export module loads netCDF: not for every start)
 
     cli = _cli()
     s = sub.add_parser("noise", help="IEEE-952 noise terms (Allan deviation) of a static record; Kalibr imu.yaml")

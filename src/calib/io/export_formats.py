@@ -45,11 +45,12 @@ import xarray as xr
 from calib import __version__
 from calib.core.errors import InputError
 from calib.core.triad import TriadModel
+from calib.io import EXPORT_FORMATS
 from calib.io.atomic import atomic_path
 from calib.io.netcdf import conventions, internal_units
 from calib.io.recording import unit_factor
 
-FORMATS = ("imutk", "imucal", "json")
+FORMATS = EXPORT_FORMATS
 JSON_CONVENTION = "calib-calibration-1"
 #: rate-reading unit of increment samples
 RATE_UNIT = {"count": "count s-1", "m s-1": "m s-2", "rad": "rad s-1", "deg": "deg s-1"}
