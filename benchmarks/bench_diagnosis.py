@@ -143,8 +143,8 @@ def bench_cli(recording, noise_record, out, reps=3):
     """Wall and CPU times of ``python -m calib.cli diagnose`` (a fresh process each: start-up, reading and checking
     the files, the whole diagnosis with its library, and the figures), with and without figures and with and
     without the noise record; the runs of one repetition are interleaved, so that a change of the machine's load
-    falls on every row alike. The CPU time (user + system of the child) is the steadier number on a shared
-    machine."""
+    falls on every row alike. The CPU time (user + system of the command and of its helper process, which checks
+    the inputs and draws the figures beside it: calib.core.helper) is the steadier number on a shared machine."""
     (out / "nofig.json").write_text('{"figures": false}')
     variants = [(["--noise-record", str(noise_record)], "default (figures), noise record", "--noise-record NR"),
                 (["--noise-record", str(noise_record), "--settings", str(out / "nofig.json")],
@@ -181,6 +181,20 @@ def bench_cli(recording, noise_record, out, reps=3):
     return rows
 
 
+def bytecode_state() -> str:
+    """Whether calib's modules start from cached byte code: with PYTHONDONTWRITEBYTECODE set (some shells and
+    sandboxes) and no cache, every process compiles calib's ~45 modules again (~0.3 s)."""
+    import importlib.util
+
+    src = sorted((ROOT / "src" / "calib").rglob("*.py"))
+    fresh = 0
+    for f in src:
+        pyc = Path(importlib.util.cache_from_source(str(f)))
+        fresh += pyc.exists() and pyc.stat().st_mtime >= f.stat().st_mtime
+    writes = "not written (PYTHONDONTWRITEBYTECODE)" if os.environ.get("PYTHONDONTWRITEBYTECODE") else "written"
+    return f"calib byte code: {fresh} of {len(src)} modules cached, new caches {writes}"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, default=5, help="timed seeds per session (after the warm-up seed)")
@@ -189,7 +203,12 @@ def main(argv=None):
     ap.add_argument("--cli-reps", type=int, default=3)
     ap.add_argument("--cli-only", action="store_true",
                     help="only the calib diagnose wall times (on the first session's template recording)")
+    ap.add_argument("--compile", action="store_true",
+                    help="write calib's byte-code caches first (python -m compileall), as any first run does where "
+                         "PYTHONDONTWRITEBYTECODE is not set")
     args = ap.parse_args(argv)
+    if args.compile:
+        subprocess.run([PY, "-m", "compileall", "-q", str(ROOT / "src" / "calib")], check=True)
     if args.cli_only:
         with tempfile.TemporaryDirectory(prefix="bench-diag-") as tmp:
             tmp = Path(tmp)
@@ -238,7 +257,7 @@ def _template(name, workdir) -> Path:
 
 def _print_cli(cli, name):
     print(f"\n## `calib diagnose` wall time (fresh process; file: {name} template recording; "
-          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs at the end)\n")
+          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs at the end; {bytecode_state()})\n")
     print("| run | command | wall min [s] | wall median [s] | CPU median [s] |")
     print("|---|---|---|---|---|")
     for label, cmd, walls, cpus in cli:
