@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import optimize
 
+from calib.diagnosis import kernels
 from calib.diagnosis.library import DRIFT_TAUS
-from calib.diagnosis.problem import Fit, Problem, base_estimates, lstsq
+from calib.diagnosis.problem import RANK_TOL, Fit, Problem, base_blocks, base_estimates, lstsq
 
 def _dS_dlntau(c, tau: float) -> np.ndarray:
     """Derivative of a drift candidate's columns with respect to ln(tau) at a grid point: the three-point
@@ -162,14 +163,39 @@ def profile_chi2(prob: Problem, terms, *, delta=None, taus=None) -> float:
     return float(rw @ rw)
 
 
+def _offset_profile(prob: Problem, terms, taus):
+    """The function ``d -> profile_chi2(prob, terms, delta=d, taus=taus)`` (the same numbers to rounding), with
+    what does not change with the offset -- the whitened observations and extra columns -- prepared once, and each
+    evaluation one compiled call (:func:`calib.diagnosis.kernels.patched_chi2`) on the patched base."""
+    om = prob.cand("time_offset").offset
+    layout = base_blocks(prob)
+    if layout is None or prob.padded() is None or any(prob.cand(k).kind == "drift" and k not in taus
+                                                      for k in terms):
+        return lambda d: profile_chi2(prob, terms, delta=float(d), taus=taus)
+    _, wcols, _, _ = _linear_design(prob, [k for k in terms if k != "time_offset"], taus, None)
+    extra = wcols[1:]
+    Sw = np.ascontiguousarray(np.hstack(extra)) if extra else np.zeros((prob.n, 0))
+    nS = np.linalg.norm(Sw, axis=0)
+    nS[nS == 0] = 1.0
+    yw = np.ascontiguousarray(prob.wcache("y", lambda: prob.y))
+    Lpad = prob.padded()
+    starts, sizes, bcols = layout
+    tol = 1e3 * RANK_TOL
+
+    def f(d):
+        X = om.patch_design(prob.X0, float(d))
+        ss, ok = kernels.patched_chi2(X, Lpad, starts, sizes, bcols, yw, Sw, nS, tol)
+        return float(ss) if ok else profile_chi2(prob, terms, delta=float(d), taus=taus)
+
+    return f
+
+
 def _fit_offset(prob: Problem, terms, taus, hint=None):
     """Profile the clock offset: coarse scan on the library grid (or, with ``hint``, a bracket of +-10 ms
     around a previous estimate), then bounded Brent."""
     om = prob.cand("time_offset").offset
     lo, hi = om.bounds
-
-    def f(d):
-        return profile_chi2(prob, terms, delta=float(d), taus=taus)
+    f = _offset_profile(prob, terms, taus)
 
     if hint is not None:
         a, b = max(lo, hint - 0.01), min(hi, hint + 0.01)

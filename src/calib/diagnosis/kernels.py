@@ -133,3 +133,120 @@ def residual_ss(Sp, nS, yp, tol):  # pragma: no cover - compiled
     for i in range(n):
         ss += r[i] * r[i]
     return ss, dmin
+
+
+@numba.njit(cache=True, nogil=True)
+def base_backsolve(Q, R, nrm, starts, sizes, bcols, rest, Sw, want_cov, theta, cov, G):  # pragma: no cover
+    """The base parameters of a fit given the extra columns' estimates, block by block: ``theta[cols_b] =
+    diag(1/n_b) R_b^-1 Q_b' rest_b`` (``rest`` = the whitened observations less the extra columns' part); with
+    ``want_cov`` also the base blocks of the covariance without the extra columns, ``cov[cols_b, cols_b] =
+    diag(1/n_b) R_b^-1 R_b^-T diag(1/n_b)``, and ``G[cols_b] = diag(1/n_b) R_b^-1 Q_b' Sw_b`` (how the base estimates
+    move with the extra columns' ones)."""
+    nb, c = bcols.shape
+    p = Sw.shape[1]
+    z = np.empty(c)
+    x = np.empty(c)
+    Ri = np.zeros((c, c))
+    QtS = np.empty((c, p))
+    for b in range(nb):
+        r0 = starts[b]
+        m = sizes[b]
+        for j in range(c):
+            s = 0.0
+            for i in range(m):
+                s += Q[b, i, j] * rest[r0 + i]
+            z[j] = s
+        for j in range(c - 1, -1, -1):
+            acc = z[j]
+            for k in range(j + 1, c):
+                acc -= R[b, j, k] * x[k]
+            x[j] = acc / R[b, j, j]
+        for j in range(c):
+            theta[bcols[b, j]] = x[j] / nrm[b, j]
+        if not want_cov:
+            continue
+        for j in range(c):                       # R^-1, upper triangular, column by column
+            for i in range(c):
+                Ri[i, j] = 0.0
+            Ri[j, j] = 1.0 / R[b, j, j]
+            for i in range(j - 1, -1, -1):
+                acc = 0.0
+                for k in range(i + 1, j + 1):
+                    acc += R[b, i, k] * Ri[k, j]
+                Ri[i, j] = -acc / R[b, i, i]
+        for i in range(c):
+            for j in range(c):
+                Ri[i, j] /= nrm[b, i]
+        for i in range(c):
+            for j in range(c):
+                s = 0.0
+                for k in range(c):
+                    s += Ri[i, k] * Ri[j, k]
+                cov[bcols[b, i], bcols[b, j]] = s
+        if p:
+            for j in range(c):
+                for t in range(p):
+                    s = 0.0
+                    for i in range(m):
+                        s += Q[b, i, j] * Sw[r0 + i, t]
+                    QtS[j, t] = s
+            for i in range(c):
+                for t in range(p):
+                    s = 0.0
+                    for k in range(c):
+                        s += Ri[i, k] * QtS[k, t]
+                    G[bcols[b, i], t] = s
+
+
+@numba.njit(cache=True, nogil=True)
+def whiten_blocks(Lpad, starts, sizes, A, out):  # pragma: no cover - compiled
+    """``out = blockdiag(L_b)^-1 A`` (forward substitution per block of rows, ``Lpad[b, :m, :m]`` lower
+    triangular): the whitening of every column of ``A`` (n, p) in one call."""
+    n, p = A.shape
+    for b in range(starts.shape[0]):
+        r0 = starts[b]
+        m = sizes[b]
+        for i in range(m):                  # row by row: the inner loops run along contiguous rows
+            for j in range(p):
+                out[r0 + i, j] = A[r0 + i, j]
+            for k in range(i):
+                lik = Lpad[b, i, k]
+                if lik != 0.0:
+                    for j in range(p):
+                        out[r0 + i, j] -= lik * out[r0 + k, j]
+            d = Lpad[b, i, i]
+            for j in range(p):
+                out[r0 + i, j] /= d
+
+
+@numba.njit(cache=True, nogil=True)
+def patched_chi2(X, Lpad, starts, sizes, bcols, yw, Sw, nS, tol):  # pragma: no cover - compiled
+    """The chi-square of ``yw`` on ``[base X, Sw]`` for a base design ``X`` whose blocks change (the clock-offset
+    profile patches the inputs of the rotation windows at every offset it tries): the base whitened and factorised
+    block by block (:func:`whiten_factor_blocks`), ``yw`` and ``Sw`` taken off it (:func:`project_blocks`), the
+    residual sum of squares on what is left of ``Sw`` (:func:`residual_ss`). Returns ``(chi2, ok)``; ok False when a
+    base block or an extra column is nearly dependent (at ``tol``): the caller then solves with pivoting."""
+    nb, c = bcols.shape
+    mmax = Lpad.shape[1]
+    Q = np.zeros((nb, mmax, c))
+    R = np.zeros((nb, c, c))
+    nrm = np.ones((nb, c))
+    dmin = whiten_factor_blocks(X, Lpad, starts, sizes, bcols, Q, R, nrm)
+    if not dmin > tol:
+        return 0.0, False
+    n = yw.shape[0]
+    yp = np.empty((n, 1))
+    y2 = np.empty((n, 1))
+    for i in range(n):
+        y2[i, 0] = yw[i]
+    project_blocks(Q, starts, sizes, y2, yp)
+    p = Sw.shape[1]
+    if p == 0:
+        ss = 0.0
+        for i in range(n):
+            ss += yp[i, 0] * yp[i, 0]
+        return ss, True
+    Sp = np.empty((n, p))
+    project_blocks(Q, starts, sizes, Sw, Sp)
+    ss, d2 = residual_ss(Sp, nS, yp[:, 0].copy(), tol)
+    return ss, d2 > tol

@@ -214,24 +214,96 @@ def _chol_grid(A, B, yy, reml, rr, ld):  # pragma: no cover - compiled
             ld[g] += logdet
 
 
+@numba.njit(cache=True, nogil=True)
+def _profile_sensor(Xpad, ncols, ypad, L0s, Vs, Ws, lsums, reml, rr, ld, ranks):  # pragma: no cover - compiled
+    """The grid of :func:`profile_noise` for one sensor's axis blocks in one call: per block b the design
+    ``Xpad[b, :, :ncols[b]]`` and observations ``ypad[b]`` whitened by the fast-noise factor ``L0s[b]``, the design's
+    column space (SVD, singular values above 1e-9 of the largest: its rank into ``ranks[b]``), the observations less
+    their projection on it; then for every Tc index t the eigen-coordinates ``Vs[t, b]`` and the grid's weights
+    ``Ws[t, b]`` (G, m): ``rr[t] += y'Wy - y'WX (X'WX)^-1 X'Wy``, ``ld[t] += sum ln d (+ ln det X'WX for REML)``
+    (:func:`_chol_grid`, ``lsums[t, b]`` the weights' log-sums)."""
+    B, m, _ = Xpad.shape
+    T = Ws.shape[0]
+    for b in range(B):
+        c = ncols[b]
+        X1 = np.empty((m, c))
+        y1 = np.empty(m)
+        for j in range(c):
+            for i in range(m):
+                acc = Xpad[b, i, j]
+                for k in range(i):
+                    acc -= L0s[b, i, k] * X1[k, j]
+                X1[i, j] = acc / L0s[b, i, i]
+        for i in range(m):
+            acc = ypad[b, i]
+            for k in range(i):
+                acc -= L0s[b, i, k] * y1[k]
+            y1[i] = acc / L0s[b, i, i]
+        r = 0
+        if c > 0:
+            U, sv, _ = np.linalg.svd(X1, full_matrices=False)
+            for k in range(sv.size):
+                if sv[k] > 1e-9 * sv[0]:
+                    r += 1
+            Ur = np.ascontiguousarray(U[:, :r])
+            for _ in range(2):
+                coef = np.dot(Ur.T, y1)
+                y1 -= np.dot(Ur, coef)
+        ranks[b] = r
+        nT = r * (r + 1) // 2
+        for t in range(T):
+            W = Ws[t, b]
+            V = Vs[t, b]
+            yt = np.dot(V.T, y1)
+            y2 = yt * yt
+            yy = np.dot(W, y2)
+            if r == 0:
+                for g in range(W.shape[0]):
+                    rr[t, g] += yy[g]
+                    ld[t, g] += lsums[t, b, g]
+                continue
+            Xt = np.dot(V.T, Ur)
+            P = np.empty((m, nT))
+            Py = np.empty((m, r))
+            for i in range(m):
+                q = 0
+                for p_ in range(r):
+                    xp = Xt[i, p_]
+                    Py[i, p_] = xp * yt[i]
+                    for j in range(p_ + 1):
+                        P[i, q] = xp * Xt[i, j]
+                        q += 1
+            A = np.dot(W, P)
+            Bm = np.dot(W, Py)
+            rr_t = np.zeros(W.shape[0])
+            ld_t = np.zeros(W.shape[0])
+            _chol_grid(A, Bm, yy, reml, rr_t, ld_t)
+            for g in range(W.shape[0]):
+                rr[t, g] += rr_t[g]
+                ld[t, g] += ld_t[g] + lsums[t, b, g]
+
+
 #: the relative variances of the slow part tried by :func:`profile_noise`, in units of 1 / max(lam) (and rho = 0)
 RHO_GRID = np.logspace(-4, 3, 71)
-_TRIL: dict = {}
-
-
-def _tril(r: int):
-    """``numpy.tril_indices(r)`` (kept per r)."""
-    if r not in _TRIL:
-        _TRIL[r] = np.tril_indices(r)
-    return _TRIL[r]
-
-
-def _grid_weights(noise: NoiseFit, key, lam, rho):
-    """Weights ``1 / (1 + rho_g lam_i)`` (G, m) of a block's eigen-coordinates at every grid point and their
-    ``sum_i ln(1 + rho_g lam_i)`` (G,): the design-independent part of the profile, kept with the noise shape."""
+def _grid_stack(geom: Geometry, noise: NoiseFit, parts, s: str, axes, tcs, cache):
+    """What :func:`_profile_sensor` needs of the noise shape of sensor ``s`` on ``axes`` for the correlation times
+    ``tcs``: fast-noise factors (B, m, m), eigen-coordinates (T, B, m, m), grid weights (T, B, G, m) and their
+    log-sums (T, B, G), the grid (T, G: rho in units of 1 / max lam of the first axis). Kept with the noise shape."""
+    nq = tuple((float(noise.N_shape[s][a]), float(noise.Q_shape[s][a])) for a in axes)
+    key = ("stack", s, tuple(axes), tuple(tcs)) + nq
     if key not in noise.shape_cache:
-        d = 1.0 + rho[:, None] * lam[None, :]
-        noise.shape_cache[key] = (1.0 / d, np.sum(np.log(d), axis=1))
+        L0s = np.stack([shape_factor(noise, parts, s, a) for a in axes])
+        Vs, Ws, lsums, rhos = [], [], [], []
+        for tc in tcs:
+            eig = [shape_eig(geom, noise, parts, s, a, tc, cache) for a in axes]
+            rho = np.concatenate([[0.0], (1.0 / max(eig[0][1].max(), 1e-300)) * RHO_GRID])
+            d = [1.0 + rho[:, None] * lam[None, :] for _, lam, _ in eig]
+            Vs.append(np.stack([V for _, _, V in eig]))
+            Ws.append(np.stack([1.0 / x for x in d]))
+            lsums.append(np.stack([np.sum(np.log(x), axis=1) for x in d]))
+            rhos.append(rho)
+        noise.shape_cache[key] = (L0s, np.ascontiguousarray(np.stack(Vs)), np.ascontiguousarray(np.stack(Ws)),
+                                  np.stack(lsums), np.stack(rhos))
     return noise.shape_cache[key]
 
 
@@ -288,53 +360,36 @@ def profile_noise(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=
         mine = [(sj, a) for sj, a in keys if sj == si]
         if not mine:
             continue
-        pre = []
-        for _, a in mine:
-            idx = geom.obs["blocks"][(si, a)]
-            Xb = X[idx]
-            Xb = Xb[:, np.any(Xb != 0, axis=0)]
-            L0 = shape_factor(noise, parts, s, a)
-            X1 = solve_lower(L0, Xb)
-            y1 = solve_lower(L0, y[idx])
-            U, sv, _ = np.linalg.svd(X1, full_matrices=False)
-            X1 = U[:, sv > 1e-9 * sv[0]] if sv.size else U
-            y1 = y1 - X1 @ (X1.T @ y1)
-            y1 = y1 - X1 @ (X1.T @ y1)
-            pre.append((a, X1, y1))
-        m_tot = sum(p[1].shape[0] for p in pre)
-        nfree = sum(p[1].shape[0] - (p[1].shape[1] if method == "reml" else 0) for p in pre)
-        best, white = None, None
-        for tc in tcs:
-            rr_t, ld_t = None, None
-            rho = None
-            for a, X1, y1 in pre:
-                _, lam, V = shape_eig(geom, noise, parts, s, a, tc, cache)
-                if rho is None:
-                    a_rho = a
-                    scale = 1.0 / max(lam.max(), 1e-300)
-                    rho = np.concatenate([[0.0], scale * RHO_GRID])
-                if rr_t is None:
-                    rr_t, ld_t = np.zeros(rho.size), np.zeros(rho.size)
-                nq = (float(noise.N_shape[s][a]), float(noise.Q_shape[s][a]))
-                W, lsum = _grid_weights(noise, ("grid", s, a, tc, a_rho) + nq, lam, rho)
-                Xt, yt = V.T @ X1, V.T @ y1
-                r = Xt.shape[1]
-                ti, tj = _tril(r)
-                # the weighted Gram matrices of every grid point in one product: W (G, m) times the rows' outer
-                # products (m, r (r + 1) / 2)
-                _chol_grid(W @ (Xt[:, ti] * Xt[:, tj]), W @ (Xt * yt[:, None]), W @ (yt * yt), method == "reml",
-                           rr_t, ld_t)
-                ld_t += lsum
-            lam_hat = rr_t / nfree
-            nll = nfree * np.log(lam_hat) + ld_t
-            if grid_out is not None:
+        axes = [a for _, a in mine]
+        L0s, Vs, Ws, lsums, rhos = _grid_stack(geom, noise, parts, s, axes, tcs, cache)
+        idxs = [geom.obs["blocks"][(si, a)] for a in axes]
+        m = len(idxs[0])
+        if any(len(i) != m for i in idxs):
+            raise ValueError("profile_noise: the axis blocks of a sensor must have as many observations")
+        nzc = [np.flatnonzero(np.any(X[i] != 0, axis=0)) for i in idxs]
+        Xpad = np.zeros((len(axes), m, max(max((c.size for c in nzc), default=0), 1)))
+        for b, (i, c) in enumerate(zip(idxs, nzc)):
+            Xpad[b, :, :c.size] = X[i][:, c]
+        ypad = np.stack([np.asarray(y, float)[i] for i in idxs])
+        rr = np.zeros(rhos.shape)
+        ld = np.zeros(rhos.shape)
+        ranks = np.zeros(len(axes), np.int64)
+        _profile_sensor(Xpad, np.array([c.size for c in nzc], np.int64), ypad, L0s, Vs, Ws, lsums,
+                        method == "reml", rr, ld, ranks)
+        m_tot = m * len(axes)
+        nfree = m_tot - (int(ranks.sum()) if method == "reml" else 0)
+        lam_hat = rr / nfree
+        nll = nfree * np.log(lam_hat) + ld
+        if grid_out is not None:
+            for t, tc in enumerate(tcs):
                 grid_out.setdefault(s, []).extend(
-                    (float(v), tc, float(r), float(lh)) for v, r, lh in zip(nll, rho, lam_hat))
-            if white is None:
-                white = (float(nll[0]), math.inf, 0.0, float(lam_hat[0]))
-            j = int(np.argmin(nll))
-            if best is None or nll[j] < best[0]:
-                best = (float(nll[j]), tc, float(rho[j]), float(lam_hat[j]))
+                    (float(v), tc, float(r), float(lh)) for v, r, lh in zip(nll[t], rhos[t], lam_hat[t]))
+        white = (float(nll[0, 0]), math.inf, 0.0, float(lam_hat[0, 0]))
+        best = None
+        for t, tc in enumerate(tcs):
+            j = int(np.argmin(nll[t]))
+            if best is None or nll[t, j] < best[0]:
+                best = (float(nll[t, j]), tc, float(rhos[t, j]), float(lam_hat[t, j]))
         if white[0] - best[0] < 2.0 * math.log(m_tot):
             best = white
         nll_b, tc, rho_b, lam_b = best

@@ -86,10 +86,42 @@ class Problem:
         """L^-1 A block by block (A (n,) or (n, k)); ``L``: other Cholesky factors than the problem's."""
         A = np.asarray(A, float)
         L = self.L if L is None else L
+        Lpad = self.padded(L)
+        if Lpad is not None:       # one compiled call for every block
+            starts, sizes = self.__dict__["_row_layout"]
+            A2 = np.ascontiguousarray(A.reshape(A.shape[0], -1))
+            out = np.empty_like(A2)
+            kernels.whiten_blocks(Lpad, starts, sizes, A2, out)
+            return out.reshape(A.shape)
         out = np.empty_like(A)
         for key, idx in self.geom.obs["blocks"].items():
             out[idx] = solve_lower(L[key], A[idx])
         return out
+
+    def padded(self, L=None):
+        """The Cholesky factors ``L`` (default: the problem's) of the observation blocks in one zero-padded array
+        (blocks, m, m) for the compiled calls, kept until the noise model changes; None when the blocks are not
+        runs of rows that together cover every observation."""
+        if "_row_layout" not in self.__dict__:
+            idxs = [np.asarray(i) for i in self.geom.obs["blocks"].values()]
+            ok = (all(i.size and np.all(np.diff(i) == 1) for i in idxs)
+                  and np.array_equal(np.sort(np.concatenate(idxs)), np.arange(self.n)))
+            self.__dict__["_row_layout"] = ((np.array([i[0] for i in idxs], np.int64),
+                                             np.array([i.size for i in idxs], np.int64)) if ok else None)
+        if self.__dict__["_row_layout"] is None:
+            return None
+        L = self.L if L is None else L
+        c = self.__dict__.setdefault("_wc", {})
+        got = c.get(("Lpad", id(L)))
+        if got is None or got[0] is not L:
+            sizes = self.__dict__["_row_layout"][1]
+            mmax = int(sizes.max())
+            Lpad = np.zeros((len(sizes), mmax, mmax))
+            for b, key in enumerate(self.geom.obs["blocks"]):
+                m = int(sizes[b])
+                Lpad[b, :m, :m] = L[key]
+            got = c[("Lpad", id(L))] = (L, Lpad)
+        return got[1]
 
     def sigma(self):
         """Standard deviation of every observation (diagonal of the covariance)."""
@@ -113,19 +145,13 @@ class Problem:
         if layout is None:
             return None
         c = self.__dict__.setdefault("_wc", {})
-        if "Lpad" not in c:       # the blocks' Cholesky factors in one array (zero padded), for the compiled calls
-            mmax = int(layout[1].max())
-            Lpad = np.zeros((len(layout[0]), mmax, mmax))
-            for b, key in enumerate(self.geom.obs["blocks"]):
-                m = int(layout[1][b])
-                Lpad[b, :m, :m] = self.L[key]
-            c["Lpad"] = Lpad
+        Lpad = self.padded()
         if X is None:
             if "base_qr" not in c:
-                c["base_qr"] = BaseQR(self.X0, c["Lpad"], layout, self.X0.shape[1])
+                c["base_qr"] = BaseQR(self.X0, Lpad, layout, self.X0.shape[1])
             b = c["base_qr"]
         else:
-            b = BaseQR(X, c["Lpad"], layout, X.shape[1])
+            b = BaseQR(X, Lpad, layout, X.shape[1])
         return b if b.full_rank else None
 
     def forget_whitened(self):
@@ -323,20 +349,16 @@ class BaseQR:
             rest = yw
         theta = np.zeros(k0 + p)
         theta[k0:] = thS
-        cov = None
-        if want_cov:
-            cov = np.zeros((k0 + p, k0 + p))
+        cov = np.zeros((k0 + p, k0 + p)) if want_cov else np.zeros((0, 0))
+        G = np.zeros((k0, p))
+        kernels.base_backsolve(self.Q, self.R, self.nrm, self.starts, self.sizes, self.bcols,
+                               np.ascontiguousarray(rest, dtype=float),
+                               np.ascontiguousarray(Sw, dtype=float) if p else np.zeros((rest.size, 0)),
+                               bool(want_cov), theta, cov, G)
+        if not want_cov:
+            cov = None
+        else:
             cov[k0:, k0:] = covS
-            G = np.zeros((k0, p))
-        for b in range(self.bcols.shape[0]):
-            r0, m, cols = self.starts[b], self.sizes[b], self.bcols[b]
-            Q, R, nrm = self.Q[b, :m], self.R[b], self.nrm[b]
-            theta[cols] = solve_tri(R, Q.T @ rest[r0:r0 + m], lower=False) / nrm
-            if want_cov:
-                Ri = solve_tri(R, np.eye(R.shape[0]), lower=False) / nrm[:, None]
-                cov[np.ix_(cols, cols)] = Ri @ Ri.T
-                if p:
-                    G[cols] = Ri @ (Q.T @ Sw[r0:r0 + m])
         if want_cov and p:
             GC = G @ covS
             cov[:k0, :k0] += GC @ G.T
