@@ -10,6 +10,7 @@ from conftest import columns_settings, session, write_columns
 
 from calib.core.errors import InputError
 from calib.fieldcal import fieldcal_recording
+from calib.fieldcal import units_check
 from calib.fieldcal.units_check import UnitsCheckError, check_gyro_units
 from calib.ingest import (
     ImportDataError,
@@ -114,6 +115,22 @@ def test_closure_per_pair_and_not_checked():
     iv = np.array([[100, a - 100], [b - 200, b - 10]])
     uc = check_gyro_units(s["gyro"], s["accel"], iv, dt[:b])
     assert uc.status == "not checked" and "at least 2" in uc.reason
+
+
+def test_grid_of_factors_in_one_call_is_the_per_factor_closure_to_the_bit():
+    """The grid search integrates every factor in one compiled call (factors in vector lanes); each cost must equal,
+    bit for bit, the closure computed one factor at a time (the integration of ``w0 * s`` as numpy rounds it), over
+    the whole grid and on arrival-stamp steps, so that the factor found (and every closure reported) is unchanged."""
+    s = session(4, drop=0.01, burst=1.024)
+    iv = fieldcal_recording(_dataset(s, s["gyro"], "rad s-1", s["fs"]), {"gravity_m_s2": s["gravity"]}).intervals
+    dt = np.append(np.diff(s["time"]), 1 / s["fs"])   # uneven steps: bursts and dropped samples
+    iv_, u, bias, gangle = units_check._pairs_problem(s["gyro"], s["accel"], iv, dt)
+    angles = units_check._closure(s["gyro"], dt, iv_, u, bias, np.flatnonzero(gangle >= units_check.MIN_PAIR_ANGLE_DEG))
+    grid = np.exp(np.linspace(math.log(units_check.SCALE_RANGE[0]), math.log(units_check.SCALE_RANGE[1]),
+                              units_check.GRID_POINTS))
+    one_by_one = np.array([float(np.sum(angles(x) ** 2)) for x in grid])
+    assert np.array_equal(angles.grid_cost(grid), one_by_one)
+    assert units_check.best_scale(angles) == units_check.best_scale(lambda x: angles(x))   # same search either way
 
 
 # ----------------------------------------------------------------------------------- shared recordings
