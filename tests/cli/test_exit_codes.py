@@ -140,6 +140,26 @@ def test_signals_leave_no_partial_file_and_keep_the_earlier_output(tmp_path, sig
     assert sorted(os.listdir(tmp_path)) == ["nav.nc"]
 
 
+@pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
+def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, capsys, signum, code, name):
+    """A signal that lands inside an extension module while it loads comes back as that module's ImportError
+    ("initialization failed"): still the interruption's exit code and line, not an internal error."""
+    def interrupted_import(a):
+        try:
+            os.kill(os.getpid(), signum)
+            time.sleep(5)
+        except KeyboardInterrupt:
+            raise ImportError("initialization failed") from None
+
+    monkeypatch.setattr(cli, "cmd_validate", interrupted_import)
+    assert cli.main(["validate", "x.nc"]) == code
+    err = capsys.readouterr().err
+    assert f"calib validate: interrupted by {name}" in err and "internal error" not in err
+    monkeypatch.setattr(cli, "cmd_validate", lambda a: (_ for _ in ()).throw(ImportError("a bug")))
+    assert cli.main(["validate", "x.nc"]) == 70   # no signal: an ImportError is a bug
+    capsys.readouterr()
+
+
 def test_version_prints_the_package_version_and_exits_0():
     from calib import __version__
 

@@ -372,6 +372,19 @@ def _diagnose_refusal(path, settings, out_dir, exc):
 # --------------------------------------------------------------------------- dispatch: one exit-code contract
 
 
+#: the signal the handler of :func:`_signals` received (None: none)
+_RECEIVED: list = [None]
+
+
+def _interrupted(exc):
+    """The interruption behind ``exc``: the KeyboardInterrupt itself, or -- when a handled signal came first --
+    whatever the interrupted code raised instead (an extension module interrupted while it loads reports an
+    ImportError, a library may wrap the KeyboardInterrupt); None for an exception of its own."""
+    if _RECEIVED[0] is not None:
+        return Terminated(_RECEIVED[0]) if _RECEIVED[0] != signal.SIGINT else KeyboardInterrupt()
+    return None
+
+
 @contextlib.contextmanager
 def _signals():
     """SIGINT and SIGTERM raise KeyboardInterrupt / Terminated (the same clean path: atomic writers delete their
@@ -379,11 +392,13 @@ def _signals():
     def handler(signum, frame):
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, signal.SIG_IGN)
+        _RECEIVED[0] = signum
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
         raise Terminated(signum)
 
     old = {}
+    _RECEIVED[0] = None
     with contextlib.suppress(ValueError):   # not the main thread: leave the handlers alone
         for s in (signal.SIGINT, signal.SIGTERM):
             if signal.getsignal(s) is not signal.SIG_IGN:
@@ -445,9 +460,15 @@ def _dispatch(a) -> int:
     _STDOUT[0] = sys.stdout
     chatter = open(os.devnull, "w") if getattr(a, "quiet", False) else sys.stderr
     try:
-        with _signals(), contextlib.redirect_stdout(chatter):
-            code = a.fn(a)
-        return code or 0
+        try:
+            with _signals(), contextlib.redirect_stdout(chatter):
+                code = a.fn(a)
+            return code or 0
+        except Exception as exc:  # noqa: BLE001 - what an interrupted library raised is the interruption
+            intr = _interrupted(exc)
+            if intr is None:
+                raise
+            raise intr from exc
     except KeyboardInterrupt as exc:
         sig = "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
         _say(f"{name}: interrupted by {sig}; no partial output left, earlier outputs kept")
@@ -547,10 +568,16 @@ def main(argv=None):
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
     try:
-        with _signals():   # an interrupt while the sub-commands load: the same one line as during a command
-            from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, IMU-TK, imucal)
-            formats.register(sub)
-            a = p.parse_args(argv)   # argparse's own usage errors exit 2
+        try:
+            with _signals():   # an interrupt while the sub-commands load: the same one line as during a command
+                from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, ...)
+                formats.register(sub)
+                a = p.parse_args(argv)   # argparse's own usage errors exit 2
+        except Exception as exc:  # noqa: BLE001 - as in _dispatch
+            intr = _interrupted(exc)
+            if intr is None:
+                raise
+            raise intr from exc
     except KeyboardInterrupt as exc:
         _say(f"calib: interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'SIGINT'}; nothing written")
         return getattr(exc, "exit_code", EXIT_SIGINT)

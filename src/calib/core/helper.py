@@ -58,7 +58,11 @@ def running():
     if not enabled() or _CURRENT[0] is not None:
         yield None
         return
-    h = Helper()
+    try:
+        h = Helper()
+    except OSError:   # no process to spare (fork refused): the command does everything itself
+        yield None
+        return
     _CURRENT[0] = h
     try:
         yield h
@@ -112,18 +116,32 @@ class Helper:
         rep_r, rep_w = os.pipe()
         sys.stdout.flush()
         sys.stderr.flush()
-        pid = os.fork()
-        if pid == 0:   # the helper: never returns
-            _CURRENT[0] = None
-            os.close(req_w)
-            os.close(rep_r)
-            _serve(req_r, rep_w)
-        with contextlib.suppress(OSError):
-            os.setpgid(pid, pid)   # (the helper does it too: whichever runs first)
-        os.close(req_r)
-        os.close(rep_w)
-        self.pid, self._w, self._r = pid, req_w, rep_r
-        self._next, self._replies, self.alive = 0, {}, True
+        # no signal between the fork and the helper's own dispositions: a Ctrl-C there must not run the command's
+        # handler in the helper (its KeyboardInterrupt would unwind the command's code in the forked copy)
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        try:
+            pid = os.fork()
+            if pid == 0:   # the helper: never returns
+                try:
+                    _CURRENT[0] = None
+                    os.close(req_w)
+                    os.close(rep_r)
+                    _serve(req_r, rep_w, mask)
+                finally:
+                    os._exit(1)
+            with contextlib.suppress(OSError):
+                os.setpgid(pid, pid)   # (the helper does it too: whichever runs first)
+            os.close(req_r)
+            os.close(rep_w)
+            self.pid, self._w, self._r = pid, req_w, rep_r
+            self._next, self._replies, self.alive = 0, {}, True
+        except BaseException:
+            for fd in (req_r, req_w, rep_r, rep_w):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            raise
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
     def submit(self, calls) -> int:
         """Queue ``calls`` -- a list of ``(target, args)``, run at the same time when several -- and return the job
@@ -220,7 +238,7 @@ def _exception(value) -> BaseException:
 # ------------------------------------------------------------------------------------------------ the helper side
 
 
-def _serve(req_r, rep_w):
+def _serve(req_r, rep_w, mask):
     code = 0
     _SERVING[:] = [req_r, rep_w]
     try:
@@ -228,6 +246,7 @@ def _serve(req_r, rep_w):
             os.setpgid(0, 0)   # its own group: the terminal's Ctrl-C goes to the command, which ends the helper
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         while True:
             msg = _recv(req_r)
             if msg is None:   # the command closed its end (or died): nothing more to do
