@@ -10,7 +10,7 @@ import numpy as np
 
 from calib.diagnosis.adequacy import adequacy, measured_factors, unexplained_entries
 from calib.diagnosis.blas import solve_lower
-from calib.diagnosis.fitting import fit
+from calib.diagnosis.fitting import chi2_rank, fit
 from calib.diagnosis.generic import form_alternatives, open_search
 from calib.diagnosis.geometry import ROWS, SENSORS
 from calib.diagnosis.identifiability import discrimination_noncentrality, library_geometry, separating_segments
@@ -168,12 +168,16 @@ def _aliases(prob: Problem, final: Fit, key, geometry_angles):
     out = []
     for b in others:
         try:
-            fb = fit(prob, rest + [b], taus=final.taus,
-                     delta_hint=final.delta if "time_offset" in rest + [b] and "time_offset" in final.terms else None)
+            if "time_offset" in rest + [b]:
+                fb = fit(prob, rest + [b], taus=final.taus,
+                         delta_hint=final.delta if "time_offset" in final.terms else None)
+                chi2_b, k_b = fb.chi2, fb.k
+            else:     # only the chi-square and the parameter count enter the comparison
+                chi2_b, k_b = chi2_rank(prob, rest + [b], final.taus)
             lam = discrimination_noncentrality(prob, final, key, b) if final.X is not None else math.inf
         except (np.linalg.LinAlgError, ValueError):
             continue
-        dbic = (fb.chi2 - final.chi2) + (fb.k - final.k) * math.log(n)
+        dbic = (chi2_b - final.chi2) + (k_b - final.k) * math.log(n)
         ang = geometry_angles.get(frozenset((key, b)), float("nan"))
         if (dbic < st["alias_delta_bic"] or (np.isfinite(ang) and ang < st["alias_angle_deg"])
                 or lam < st["alias_noncentrality"]):

@@ -163,6 +163,31 @@ def profile_chi2(prob: Problem, terms, *, delta=None, taus=None) -> float:
     return float(rw @ rw)
 
 
+def chi2_rank(prob: Problem, terms, taus=None):
+    """``(chi2, k)`` of ``fit(prob, terms, taus=taus)`` -- the chi-square and the number of fitted parameters, what a
+    BIC comparison reads -- without the fit's estimates and covariance when every term is linear (no clock offset,
+    no drift term, whose fits add Gauss-Newton columns); otherwise from the fit itself."""
+    terms = list(terms)
+    taus = dict(taus or {})
+    if any(prob.cand(k).kind != "linear" for k in terms):
+        f = fit(prob, terms, taus=taus)
+        return f.chi2, f.k
+    _, wcols, _, base = _linear_design(prob, terms, taus, None)
+    extra = wcols[1:]
+    if base is None or not extra:
+        f = fit(prob, terms, taus=taus)
+        return f.chi2, f.k
+    Sw = np.ascontiguousarray(np.hstack(extra))
+    nS = np.linalg.norm(Sw, axis=0)
+    nS[nS == 0] = 1.0
+    yw = prob.wcache("y", lambda: prob.y)
+    ss, dmin = kernels.residual_ss(base.project(Sw), nS, _y_perp(prob, base, yw), 1e3 * RANK_TOL)
+    if not dmin > 1e3 * RANK_TOL:       # a nearly dependent column: the pivoted fit decides the rank
+        f = fit(prob, terms, taus=taus)
+        return f.chi2, f.k
+    return float(ss), base.k + Sw.shape[1]
+
+
 def _offset_profile(prob: Problem, terms, taus):
     """The function ``d -> profile_chi2(prob, terms, delta=d, taus=taus)`` (the same numbers to rounding), with
     what does not change with the offset -- the whitened observations and extra columns -- prepared once, and each
