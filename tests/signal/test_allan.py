@@ -170,3 +170,19 @@ def test_avar_sums_of_a_long_triad_record_is_the_numpy_result():
     s0, c0 = _avar_sums_numpy(y, 100.0, ms)
     np.testing.assert_array_equal(c, c0)
     np.testing.assert_array_equal(s, s0)
+
+
+def test_chi2_quantiles_are_scipy_stats_to_the_bit():
+    """The confidence intervals use scipy.stats.chi2.ppf's own special function without importing scipy.stats: the
+    same numbers to the last bit over the degrees of freedom the estimators give (edf_white, a few samples to a
+    240 h record at every octave cluster) and the quantiles of the 68/90/95/99 % intervals."""
+    from scipy import stats
+
+    N = np.array([5, 7, 16, 33, 100, 601, 6001, 360001, 86_400_001], dtype=float)
+    m = 2.0 ** np.arange(0, 26)
+    edf = allan.edf_white(N[:, None], m[None, :]).ravel()
+    edf = np.concatenate([edf, [1.0, 1.5, 2.0, 3.7, 1e3, 1e6]])
+    for conf in (0.68, 0.90, 0.95, 0.99):
+        a = 1.0 - conf
+        for q in (a / 2.0, 1.0 - a / 2.0):
+            assert np.array_equal(allan.chi2_ppf(q, edf), stats.chi2.ppf(q, edf))

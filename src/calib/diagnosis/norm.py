@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 from scipy.optimize import least_squares
 
 from calib.calibration import objectives as ob
@@ -20,7 +19,7 @@ from calib.core.earth import STANDARD_GRAVITY
 from calib.diagnosis.geometry import AXES, TO_MODEL, DiagnosisInputError, build_geometry, rate_readings
 from calib.diagnosis.identifiability import prepare_library
 from calib.diagnosis.library import DRIFT_TAUS, EXPERIMENTS, Candidate, window_nodes, zero_params
-from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, lstsq
+from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, chi2_sf, lstsq
 from calib.signal import allan
 from calib.sim import effects
 
@@ -235,7 +234,7 @@ def setup_norm_problem(ds, settings=None) -> Problem:
     prob.L_measured = {(0, 0): np.diag(sr)}   # the Allan-measured noise, before any scaling to the scatter
     prob.noise_basis = ("measured within the static segments (white noise and quantisation of each mean); the slow "
                         "noise between segments is not in the norm model's noise")
-    prob.raw_chi2 = (chi0, dof0, float(stats.chi2.sf(chi0, max(dof0, 1))))
+    prob.raw_chi2 = (chi0, dof0, chi2_sf(chi0, max(dof0, 1)))
     prob.norm_allan = A
     # for the generic bases of calib.diagnosis.generic: dr/dd per segment and axis, and the segments' mid times
     prob.norm_generic = {"G": G, "t": np.array([geom.time_s[w.i0] + 0.5 * w.n * geom.dt for w in wins])}

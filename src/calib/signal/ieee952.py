@@ -59,7 +59,6 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from scipy import stats
 
 from calib.signal import allan
 
@@ -121,8 +120,8 @@ def chi2_band(adev, edf, confidence: float):
     """Lower and upper ends of the chi-square interval of an Allan deviation with ``edf`` degrees of freedom."""
     a = 1.0 - confidence
     av = np.asarray(adev, dtype=float) ** 2
-    lo = av * edf / stats.chi2.ppf(1.0 - a / 2.0, edf)
-    hi = av * edf / stats.chi2.ppf(a / 2.0, edf)
+    lo = av * edf / allan.chi2_ppf(1.0 - a / 2.0, edf)
+    hi = av * edf / allan.chi2_ppf(a / 2.0, edf)
     return np.sqrt(lo), np.sqrt(hi)
 
 
