@@ -155,3 +155,32 @@ def test_a_signal_leaves_no_process_and_no_partial_file(tmp_path, session, signu
         assert "interrupted by" in err
     report = (out / "report.json").read_text()
     assert report == "earlier report\n" or json.loads(report)["format"] == "calib-diagnosis-1"
+
+
+@pytest.mark.parametrize("change", [False, True])
+def test_a_figure_started_early_is_the_one_drawn_at_the_end(tmp_path, monkeypatch, session, capsys, change):
+    """report.start_figures hands the Allan figure to the helper right after the set-up (for run.py to call); the
+    files are those of a run without it, and a figure whose data changed since is drawn again from the new data."""
+    from calib.diagnosis import report, run
+
+    setup = run.setup_problem
+    started = []
+
+    def setup_and_start(ds, st, **kw):
+        prob = setup(ds, st, **kw)
+        report.start_figures(prob, tmp_path / "early", st)
+        started.append(prob.early_figures is not None)
+        if change:   # the noise fit's Allan deviation replaced after the early start: drawn again at the end
+            A = prob.noise.allan["gyro"]
+            prob.noise.allan["gyro"] = type(A)(**{**A.__dict__, "adev": A.adev * 1.5})
+        return prob
+
+    assert cli.main(["diagnose", str(session), "--out", str(tmp_path / "plain")]) in (0, 1, 3)
+    monkeypatch.setattr(run, "setup_problem", setup_and_start)
+    assert cli.main(["diagnose", str(session), "--out", str(tmp_path / "early")]) in (0, 1, 3)
+    capsys.readouterr()
+    assert started == [True]
+    plain, early = tmp_path / "plain", tmp_path / "early"
+    assert (plain / "residuals_before_after.png").read_bytes() == (early / "residuals_before_after.png").read_bytes()
+    same = (plain / "allan_deviation.png").read_bytes() == (early / "allan_deviation.png").read_bytes()
+    assert same is not change

@@ -2,6 +2,7 @@
 (standardised residuals before/after, Allan deviation)."""
 from __future__ import annotations
 
+import contextlib
 import math
 from pathlib import Path
 
@@ -213,9 +214,37 @@ def _figure_jobs(prob: Problem, fits):
             ("allan_deviation.png", "allan", allan_data(prob))]
 
 
+def start_figures(prob: Problem, out_dir, st) -> None:
+    """Hand the figure known before the analysis -- the Allan deviation of the noise fit -- to the command's
+    helper process now (:mod:`calib.core.helper`), so that it is drawn while the analysis runs;
+    :func:`write_figures` collects it (and draws it again should its data have changed since). Nothing without a
+    helper, an output folder or figures. For the caller of :func:`build_report`, right after the set-up."""
+    from calib.core import helper
+
+    h = helper.current()
+    if h is None or out_dir is None or not st.get("figures", True):
+        return
+    data = allan_data(prob)
+    with contextlib.suppress(helper.HelperError):
+        prob.early_figures = {"allan_deviation.png": (data, h.submit([("calib.figures.diagnosis:render",
+                                                                       ("allan", data))]))}
+
+
+def _same_data(a, b) -> bool:
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same_data(a[k], b[k]) for k in a)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same_data(x, y) for x, y in zip(a, b))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+    return type(a) is type(b) and a == b
+
+
 def write_figures(prob: Problem, fits, out_dir) -> list:
     """The report's figures in ``out_dir``; drawn two at a time by the command's helper process when there is one
-    (:mod:`calib.core.helper`), the files written here in the same order either way."""
+    (:mod:`calib.core.helper`; a figure handed over by :func:`start_figures` is already under way), the files
+    written here in the same order either way."""
     from calib.core import helper
 
     out_dir = Path(out_dir)
@@ -224,8 +253,21 @@ def write_figures(prob: Problem, fits, out_dir) -> list:
     if h is not None:
         from calib.figures.output import write_rendered
 
+        early = getattr(prob, "early_figures", None) or {}
+        prob.early_figures = None
         try:
-            rendered = h.result(h.submit([("calib.figures.diagnosis:render", (kind, data)) for _, kind, data in jobs]))
+            pending = {name: (jid, 0) for name, (data0, jid) in early.items()
+                       if any(n == name and _same_data(d, data0) for n, _, d in jobs)}
+            now = [(name, kind, data) for name, kind, data in jobs if name not in pending]
+            if now:
+                jid = h.submit([("calib.figures.diagnosis:render", (kind, data)) for _, kind, data in now])
+                pending.update({name: (jid, i) for i, (name, _, _) in enumerate(now)})
+            results = {}
+            for name, _, _ in jobs:   # collected in the figures' order (an exception of the first comes first)
+                jid = pending[name][0]
+                if jid not in results:
+                    results[jid] = h.result(jid)
+            rendered = [results[pending[name][0]][pending[name][1]] for name, _, _ in jobs]
         except helper.HelperError:   # the helper is gone (it writes nothing): drawn here instead
             rendered = None
         if rendered is not None:
