@@ -377,9 +377,9 @@ _RECEIVED: list = [None]
 
 
 def _interrupted(exc):
-    """The interruption behind ``exc``: the KeyboardInterrupt itself, or -- when a handled signal came first --
-    whatever the interrupted code raised instead (an extension module interrupted while it loads reports an
-    ImportError, a library may wrap the KeyboardInterrupt); None for an exception of its own."""
+    """The interruption behind ``exc`` when a handled signal came first (what the interrupted code raised instead
+    of the KeyboardInterrupt: an extension module interrupted while it loads reports an ImportError, a library may
+    wrap it); None for an exception of its own."""
     if _RECEIVED[0] is not None:
         return Terminated(_RECEIVED[0]) if _RECEIVED[0] != signal.SIGINT else KeyboardInterrupt()
     return None

@@ -3,7 +3,8 @@
 matplotlib writes creation dates into PDF and SVG and random ids into SVG; they are pinned here:
 ``svg.hashsalt`` fixed, ``metadata={'Date': None}`` for SVG, ``{'CreationDate': None}`` for PDF, and
 ``Software`` removed from PNG. Every figure the project writes goes through :func:`save`, which writes to a
-temporary name and renames.
+temporary name and renames -- or, drawn in another process, through :func:`render` (the same bytes) and
+:func:`calib.figures.output.write_rendered`.
 """
 from __future__ import annotations
 
