@@ -59,3 +59,24 @@ def test_a_wrong_local_g_is_not_determined_but_a_quadratic_nonlinearity_is():
     J, names = fisher.information_for(cfg, "accel_quadratic_nonlinearity")
     one = fisher.bounds_from(J, names, free={"k2_ug_per_g2[x]"})
     assert set(one) == {"k2_ug_per_g2[x]"} and one["k2_ug_per_g2[x]"] <= q["k2_ug_per_g2[x]"] * (1 + 1e-12)
+
+
+def test_derivatives_of_the_affine_effects_are_the_central_differences(monkeypatch):
+    """The physical path is affine in every size parameter of one effect (all but the clock offset), so the
+    derivative columns taken as one difference from zero equal the central differences at the true values."""
+    from calib.sim import effects as sim_effects
+    from calib.sim import simulator
+
+    sim = simulator.build_calibration_simulator({**SHORT, "effects": {}}, 0)
+    clean = sim.clean_increments()
+    temp = simulator.temperature_profile((np.arange(len(clean)) + 0.5) / sim.sample_rate_hz, sim.temperature)
+    for eid in ("accel_lever_arm", "accel_scale_asymmetry", "gyro_scale_nonlinearity"):  # kinematics, transfer, rate
+        assert eid in fisher.AFFINE_EFFECTS
+        params = {k: v for k, v in sim_effects.resolve({eid: {}})[eid].items() if k != "enabled"}
+        n1, c1 = fisher._effect_columns({}, sim, clean, eid, params, temp)
+        with monkeypatch.context() as m:
+            m.setattr(fisher, "AFFINE_EFFECTS", frozenset())
+            n2, c2 = fisher._effect_columns({}, sim, clean, eid, params, temp)
+        assert n1 == n2 and n1
+        for a, b in zip(c1, c2):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-6 * np.abs(b).max())

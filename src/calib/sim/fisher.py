@@ -45,6 +45,11 @@ SHAPE_PARAMETERS = {"accel_tau_s", "gyro_tau_s", "T_ref_degC"}
 #: effects the simulator makes by changing the world (derivatives by re-simulating the noise-free session)
 WORLD_EFFECTS = {"latitude_error", "gravity_error"}
 _REL_STEP = 1e-3
+#: effects of the physical path whose noise-free increments are affine in their size parameters (one effect at a
+#: time, :func:`calib.sim.physical.inject`: output (K s h + b) dt + K e with the transfer h, the scale s and the
+#: additive e each affine in the sizes): a derivative is the difference of two evaluations, at zero and at one
+#: size. The clock offset shifts the stream (not affine): central differences
+AFFINE_EFFECTS = frozenset(physical.EFFECTS) - {"time_offset"}
 
 
 def noise_spectrum(sim, n: int) -> np.ndarray:
@@ -99,8 +104,20 @@ def _with(params: dict, key: str, idx, value: float) -> dict:
 def _effect_columns(cfg: dict, sim, clean, eid: str, params: dict, temperature):
     """Derivatives of the noise-free increments (n, 6) with respect to each size parameter of the effect."""
     cols, names = [], []
+    affine = eid in AFFINE_EFFECTS
+    if affine:    # every size at zero (the shape parameters kept): the base of the differences
+        zero = {k: v if k in SHAPE_PARAMETERS or k == "enabled" else
+                (np.zeros(np.shape(v)).tolist() if np.ndim(v) else 0.0) for k, v in params.items()}
+        f0 = physical.inject(sim, clean, {eid: zero}, temperature)
     for name, key, idx in _names(eid, params):
         v0 = float(np.asarray(params[key], dtype=float)[idx])
+        if affine:
+            h = max(abs(v0), 1.0)
+            d = (physical.inject(sim, clean, {eid: _with(zero, key, idx, h)}, temperature) - f0) / h
+            if np.any(d != 0.0):
+                cols.append(d)
+                names.append(name)
+            continue
         h = _REL_STEP * max(abs(v0), 1e-3 if eid == "time_offset" else 1.0)
         out = []
         for v in (v0 + h, v0 - h):

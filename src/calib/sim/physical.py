@@ -93,6 +93,9 @@ def _lever_increments(sim, r, E_a, n, dt):
     cbn_p, cbn_m, cbn_c = _lever_attitudes(sim, n, dt)
     out = np.empty((n, 3))
     for i in range(3):
+        if not np.any(r[i]):                 # a proof mass at the origin adds nothing (exactly zero)
+            out[:, i] = 0.0
+            continue
         v = (cbn_p @ r[i] - cbn_m @ r[i]) / (2.0 * _H_DIFF_S)           # proof-mass velocity, table frame
         dv_n = v[1:] - v[:-1]                                            # velocity change over each sample
         dv_b = np.einsum("kji,kj->ki", cbn_c, dv_n)                      # C_n^b at the sample's middle
