@@ -80,3 +80,22 @@ def test_derivatives_of_the_affine_effects_are_the_central_differences(monkeypat
         assert n1 == n2 and n1
         for a, b in zip(c1, c2):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-6 * np.abs(b).max())
+
+
+def test_kept_nuisance_spectra_give_the_information_of_all_columns():
+    """The base model's nuisance columns, kept as spectra for the sessions that share a noise-free signal, give the
+    same information matrix as all columns transformed together."""
+    from calib.sim import simulator
+
+    sim = simulator.build_calibration_simulator({**SHORT, "effects": {}}, 0)
+    clean = sim.clean_increments()
+    n = len(clean)
+    e = np.zeros((n, 6))
+    e[:, 1] = np.sin(np.arange(n) / 500.0)
+    e[:, 4] = np.arange(n) / n
+    _, ncols = fisher._nuisance_columns(sim, clean)
+    S = fisher.noise_spectrum(sim, n)
+    J_all = fisher.information([e] + ncols, S)
+    J_kept = fisher.information([e], S, fixed=fisher._nuisance_spectra(sim, clean))
+    np.testing.assert_allclose(J_kept, J_all, rtol=1e-10, atol=1e-12 * np.abs(J_all).max())
+    assert fisher._nuisance_spectra(sim, clean.copy()) is fisher._nuisance_spectra(sim, clean)   # kept by content

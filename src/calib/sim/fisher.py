@@ -32,6 +32,7 @@ the null space of ``J`` (the data cannot tell it apart from a combination of the
 from __future__ import annotations
 
 import copy
+import hashlib
 import math
 
 import numpy as np
@@ -160,23 +161,60 @@ def _nuisance_columns(sim, clean):
     return names, cols
 
 
-def information(cols, S) -> np.ndarray:
-    """Whittle Fisher information of columns ``cols`` (list of (n, 6)) under the per-channel spectra ``S``."""
-    n = cols[0].shape[0]
-    P = len(cols)
-    J = np.zeros((P, P))
+def _weights(n: int, S) -> np.ndarray:
+    """Whittle weights per channel and rfft frequency: 2 (1 at zero and Nyquist) / (n S)."""
     wts = np.full(n // 2 + 1, 2.0)
     wts[0] = 1.0
     if n % 2 == 0:
         wts[-1] = 1.0
+    return wts[None, :] / (n * np.asarray(S))
+
+
+def _spectra(cols, c: int):
+    """(indices of the columns that touch channel ``c``, their rfft (nf, p_c) in that channel)."""
+    use = [k for k in range(len(cols)) if np.any(cols[k][:, c] != 0.0)]
+    if not use:
+        return use, None
+    return use, np.fft.rfft(np.stack([cols[k][:, c] for k in use], axis=1), axis=0)
+
+
+def information(cols, S, fixed=None) -> np.ndarray:
+    """Whittle Fisher information of columns ``cols`` (list of (n, 6)) under the per-channel spectra ``S``.
+    ``fixed``: columns appended after ``cols`` given by their per-channel spectra (:func:`_nuisance_spectra`)."""
+    n = cols[0].shape[0] if cols else fixed["n"]
+    P = len(cols)
+    Pn = 0 if fixed is None else fixed["p"]
+    J = np.zeros((P + Pn, P + Pn))
+    W = _weights(n, S)
     for c in range(6):
-        use = [k for k in range(P) if np.any(cols[k][:, c] != 0.0)]
+        use, F = _spectra(cols, c) if cols else ([], None)
+        if fixed is not None and fixed["use"][c]:
+            fu = [P + k for k in fixed["use"][c]]
+            F = fixed["F"][c] if F is None else np.concatenate([F, fixed["F"][c]], axis=1)
+            use = use + fu
         if not use:
             continue
-        F = np.fft.rfft(np.stack([cols[k][:, c] for k in use], axis=1), axis=0)   # (nf, p_c)
-        Fw = F * (wts / (n * S[c]))[:, None]
+        Fw = F * W[c][:, None]
         J[np.ix_(use, use)] += np.real(F.conj().T @ Fw)
     return J
+
+
+_NUISANCE: dict = {}
+
+
+def _nuisance_spectra(sim, clean) -> dict:
+    """The base model's 24 nuisance columns (:func:`_nuisance_columns`) as per-channel spectra, kept for the last
+    noise-free session (by content and unit): the single-effect sessions of the proof share them."""
+    key = (hashlib.blake2b(np.ascontiguousarray(clean).tobytes(), digest_size=16).hexdigest(),
+           float(sim.sample_rate_hz)) + tuple(float(v) for m in (sim.accel, sim.gyro)
+                                            for v in np.concatenate([np.ravel(m.K), np.ravel(m.E), np.ravel(m.b)]))
+    if key not in _NUISANCE:
+        _NUISANCE.clear()
+        names, cols = _nuisance_columns(sim, clean)
+        spec = [_spectra(cols, c) for c in range(6)]
+        _NUISANCE[key] = {"n": len(clean), "p": len(cols), "names": names, "use": [u for u, _ in spec],
+                          "F": [F for _, F in spec]}
+    return _NUISANCE[key]
 
 
 def information_for(cfg: dict, effect_id: str, params: dict | None = None, sim=None, clean=None, temperature=None):
@@ -195,8 +233,7 @@ def information_for(cfg: dict, effect_id: str, params: dict | None = None, sim=N
     full = sim_effects.resolve({effect_id: params or {}})[effect_id]
     full = {k: v for k, v in full.items() if k != "enabled"}
     enames, ecols = _effect_columns(cfg, sim, clean, effect_id, full, temperature)
-    _, ncols = _nuisance_columns(sim, clean)
-    return information(ecols + ncols, noise_spectrum(sim, n)), enames
+    return information(ecols, noise_spectrum(sim, n), fixed=_nuisance_spectra(sim, clean)), enames
 
 
 def bounds_from(J: np.ndarray, enames: list, free=None, null_tol: float = 1e-9) -> dict:
