@@ -30,6 +30,27 @@ NORM_EFFECTS = [("accel_quadratic_nonlinearity", [("k2_ug_per_g2", "vec")]),
                 ("temperature_sensitivity", [("accel_bias_ug_per_degC", "vec"), ("accel_scale_ppm_per_degC", "vec")])]
 
 
+#: the parameter dicts of the library's unit columns, built once per process (the registry's ``apply`` only reads them;
+#: a repeated diagnosis, e.g. the real proof's repetitions, asked for thousands of fresh copies)
+_UNIT_PARAMS: dict = {}
+
+
+def _unit_params(eid, key, e, tau=None) -> dict:
+    """The zeroed registry defaults of ``eid`` (:func:`zero_params`) with element ``e`` of ``key`` set to 1 (and,
+    for the bias drift's warm-up, ``accel_tau_s = tau``). One dict per argument tuple, shared: do not modify."""
+    k = (eid, key, e, tau)
+    p = _UNIT_PARAMS.get(k)
+    if p is None:
+        p = zero_params(eid)
+        arr = np.zeros(np.shape(effects.REGISTRY[eid].defaults[key]))
+        arr[e] = 1.0
+        p[key] = arr.tolist()
+        if tau is not None:
+            p["accel_tau_s"] = tau
+        _UNIT_PARAMS[k] = p
+    return p
+
+
 def _norm_initial(N, ref):
     """Lower-triangular M and b from an algebraic ellipsoid fit of the static means: (N - b)^T (M M^T)^-1 (N - b)
     = ref^2."""
@@ -114,8 +135,10 @@ def setup_norm_problem(ds, settings=None) -> Problem:
 
     def col(eid, p):
         da, _ = effects.REGISTRY[eid].apply(ctx, p)
-        dm = np.zeros((len(wins), 3))
-        np.add.at(dm, owner, da)
+        # per-window sums of the nodes: np.add.at's sums (each in node order from 0), by bincount (the same order)
+        dm = np.empty((len(wins), 3))
+        for c in range(3):
+            dm[:, c] = np.bincount(owner, weights=da[:, c], minlength=len(wins))
         dm /= cnt[:, None]
         return np.sum(G * dm, axis=1)
 
@@ -130,11 +153,7 @@ def setup_norm_problem(ds, settings=None) -> Problem:
             entries = ([(i,) for i in range(3)] if kind == "vec" else
                        [(i, j) for i in range(3) for j in range(3) if i != j])
             for e in entries:
-                p = zero_params(eid)
-                arr = np.zeros(np.shape(effects.REGISTRY[eid].defaults[key]))
-                arr[e] = 1.0
-                p[key] = arr.tolist()
-                cols.append(col(eid, p))
+                cols.append(col(eid, _unit_params(eid, key, e)))
                 names.append(key + "[" + ",".join(AXES[i] for i in e) + "]")
                 units.append(effects.REGISTRY[eid].units.get(key, ""))
                 axes_.append(AXES[e[0]])
@@ -152,20 +171,11 @@ def setup_norm_problem(ds, settings=None) -> Problem:
                      + [("accel_trend_ug_per_h", (i,)) for i in range(3)])
     trend = []
     for i in range(3):
-        p = zero_params("bias_drift")
-        v = [0.0] * 3
-        v[i] = 1.0
-        p["accel_trend_ug_per_h"] = v
-        trend.append(col("bias_drift", p))
+        trend.append(col("bias_drift", _unit_params("bias_drift", "accel_trend_ug_per_h", (i,))))
     for tau in DRIFT_TAUS:
         cols = []
         for i in range(3):
-            p = zero_params("bias_drift")
-            v = [0.0] * 3
-            v[i] = 1.0
-            p["accel_warmup_ug"] = v
-            p["accel_tau_s"] = tau
-            cols.append(col("bias_drift", p))
+            cols.append(col("bias_drift", _unit_params("bias_drift", "accel_warmup_ug", (i,), tau)))
         c.S_by_tau[tau] = np.column_stack(cols + trend)
     c.S = c.S_by_tau[900.0]
     lib.append(c)
