@@ -160,3 +160,21 @@ def test_rounding_level_change_of_the_data_changes_the_report_at_rounding_level(
         for pa, pb in zip(fa["parameters"], fb["parameters"]):
             assert math.isclose(pa["value"], pb["value"], rel_tol=1e-6, abs_tol=1e-6 * pa["se"])
             assert math.isclose(pa["se"], pb["se"], rel_tol=1e-6)
+
+
+def test_clock_offset_profile_is_the_least_squares_of_the_patched_design(problem):
+    """At every offset the clock profile tries, its chi-square (the patched base factorised block by block in one
+    compiled call) equals the pivoted least squares of the whole whitened design patched at that offset."""
+    from calib.diagnosis import fitting
+
+    _, _, prob = problem
+    terms = ["accel_lever_arm/accel", "time_offset"]
+    f = fitting._offset_profile(prob, terms, {})
+    S = fitting.columns(prob, "accel_lever_arm/accel", {})
+    yw = prob.whiten(prob.y)
+    for d in (-0.2, -0.013, 0.0, 0.004, 0.17):
+        X = prob.cand("time_offset").offset.patch_design(prob.X0, d)
+        Aw = prob.whiten(np.hstack([X, S]))
+        th, _, _ = lstsq(Aw, yw, want_cov=False)
+        r = yw - Aw @ th
+        assert math.isclose(f(d), float(r @ r), rel_tol=1e-8)
