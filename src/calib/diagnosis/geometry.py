@@ -28,6 +28,7 @@ angular rate ``omega_ib^b = u theta' + C_n^b omega_ie^n`` [deg/h for counts], wi
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -604,10 +605,37 @@ def rotation_angles(geom: Geometry, w: Window, deltas):
     shape = (deltas.size, w.n)
     c, s, r = np.empty(shape), np.empty(shape), np.empty(shape)
     angles_loop, _ = _kernels()
-    angles_loop(np.arange(w.n) * geom.dt, deltas, float(geom.sample_start_s), float(geom.dt),
-                np.ascontiguousarray(w.spline.x, dtype=float), np.ascontiguousarray(w.spline.c, dtype=float),
-                c, s, r)
+    args = (np.arange(w.n) * geom.dt, float(geom.sample_start_s), float(geom.dt),
+            np.ascontiguousarray(w.spline.x, dtype=float), np.ascontiguousarray(w.spline.c, dtype=float))
+
+    def rows(a, b):
+        angles_loop(args[0], deltas[a:b], *args[1:], c[a:b], s[a:b], r[a:b])
+
+    h = deltas.size // 2
+    if h and deltas.size * w.n >= _THREADED and angles_loop.signatures and _cores() > 1:
+        # the offsets in two halves, one in a thread (the loop holds no GIL): each row's numbers are its own
+        import threading
+
+        t = threading.Thread(target=rows, args=(0, h))
+        t.start()
+        try:
+            rows(h, deltas.size)
+        finally:
+            t.join()
+    else:
+        rows(0, deltas.size)
     return c, s, r
+
+
+#: samples x offsets from which :func:`rotation_angles` uses a second core
+_THREADED = 1 << 16
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def _angles0(geom: Geometry, j: int):
