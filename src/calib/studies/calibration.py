@@ -169,7 +169,14 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
 
     keys = ["accel", "gyro_static"] + (["gyro_dynamic"] if inp.gyro_pairs is not None else [])
     tasks = [(key, m, seeds.child_seed(seed, "method", m)) for key in keys for m in methods]
-    results = _map_tasks(inp, ccfg, tasks, workers, bar)
+    # scipy's differential evolution blocks first (each several times any other block): handed out last, one of them
+    # kept a worker busy long after the other had run out of blocks. Every block is seeded by itself, and the results
+    # are put back in task order, so nothing but the wall time depends on the order
+    order = sorted(range(len(tasks)), key=lambda i: tasks[i][1] != "scipy_de")
+    done = _map_tasks(inp, ccfg, [tasks[i] for i in order], workers, bar)
+    results = [None] * len(tasks)
+    for j, i in enumerate(order):
+        results[i] = done[j]
     for (key, m, _), (res, dt) in zip(tasks, results):
         timing[f"{key}_{m}_s"] = dt
         L = np.array([r.L for r in res])
