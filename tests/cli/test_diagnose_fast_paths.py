@@ -102,3 +102,24 @@ def test_grouped_library_columns_are_one_evaluation_per_parameter(session):
                     assert _same(c.S_by_tau[tau][:, col], column("bias_drift", sensor, p))
                     checked += 1
     assert checked == 9 + 9 + 6 + 6 + 3 + 24
+
+
+def test_compiled_loops_come_from_the_disk_cache_in_a_fresh_process(session, tmp_path):
+    """The loops are compiled once (numba, cache beside the module) and loaded, not compiled, by every later
+    process: a second fresh process reads them from the cache and writes nothing."""
+    import os
+    import subprocess
+    import sys
+
+    path = tmp_path / "s.nc"
+    session.to_netcdf(path)
+    code = ("import numpy as np\nfrom calib.io import recording\nfrom calib.diagnosis import geometry\n"
+            f"ds = recording.load(r'{path}', validate_all=False)\ng = geometry.build_geometry(ds)\n"
+            "geometry.offset_grid_inputs(g, np.linspace(-0.25, 0.25, 41))\n")
+    env = dict(os.environ, NUMBA_DEBUG_CACHE="1")
+    logs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300,
+                           check=True).stdout for _ in range(2)]
+    mine = [ln for ln in logs[1].splitlines() if "geometry._angles_loop" in ln or "geometry._inputs_loop" in ln]
+    assert any("data loaded" in ln and "_angles_loop" in ln for ln in mine), logs[1][-2000:]
+    assert any("data loaded" in ln and "_inputs_loop" in ln for ln in mine), logs[1][-2000:]
+    assert not [ln for ln in mine if "saved" in ln], mine
