@@ -10,7 +10,8 @@ time, one in a forked grandchild -- while the command's own process owns every o
 * a job's printed output is captured and returned with its value; the command prints it where it would have
   appeared, so the terminal shows the same lines in the same order;
 * an exception in a job is raised again in the command (its traceback text attached as a note), so errors keep
-  their exit codes; a helper that dies is a :class:`HelperError` (exit 70, a bug);
+  their exit codes; a helper that died raises :class:`HelperError`, on which the callers do the work themselves
+  (``calib diagnose`` checks its inputs and draws its figures in its own process);
 * the helper runs in its own process group (a Ctrl-C at the terminal reaches the command only) and ends with
   the command: :meth:`Helper.close` terminates the group and reaps the helper on every path, including
   SIGINT / SIGTERM of the command; if the command itself is killed, the helper sees its request pipe close and
