@@ -26,7 +26,10 @@ def test_fast_session_is_the_simulator(tmp_path):
     cfg = {**SHORT, "effects": {"time_offset": {"offset_s": 0.01}}, "conceal": True}
     path = simulator.simulate_calibration_session(cfg, 5, tmp_path / "s5.nc")
     ds = recording.load(path)
-    fast = FastSession(cfg, tmp_path / "fast").dataset(5)
+    fs = FastSession(cfg, tmp_path / "fast")
+    fast = fs.dataset(5)
+    # its end-to-end file is the simulator's own, byte for byte
+    assert fs.path.read_bytes() == simulator.simulate_calibration_session(cfg, 0, tmp_path / "s0.nc").read_bytes()
     assert np.array_equal(ds["accel"].values, fast["accel"].values)
     assert np.array_equal(ds["gyro"].values, fast["gyro"].values)
     sim = simulator.build_calibration_simulator(cfg, 0)
