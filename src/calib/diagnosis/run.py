@@ -12,7 +12,7 @@ from calib.diagnosis.blas import single_thread_blas
 from calib.diagnosis.geometry import DiagnosisInputError
 from calib.diagnosis.norm import setup_norm_problem
 from calib.diagnosis.problem import DEFAULT_SETTINGS
-from calib.diagnosis.report import build_report, inconclusive_report, report_markdown
+from calib.diagnosis.report import build_report, inconclusive_report, report_markdown, start_figures
 from calib.diagnosis.vector import setup_problem
 from calib.io import recording
 from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
@@ -63,6 +63,7 @@ def _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from=None):
             prob = setup_problem(ds, st, library_from=library_from, geometry_from=geometry_from)
         else:
             prob = setup_norm_problem(ds, st)
+        start_figures(prob, out_dir, st)    # with a helper process: the noise figure drawn while the analysis runs
         rank = np.linalg.matrix_rank(prob.whiten(prob.X0))
         if rank < prob.X0.shape[1]:
             raise DiagnosisInputError(f"the base calibration failed: its design has rank {rank} of "
