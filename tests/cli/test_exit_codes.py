@@ -152,7 +152,13 @@ def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, cap
             raise ImportError("initialization failed") from None
 
     monkeypatch.setattr(cli, "cmd_validate", interrupted_import)
-    assert cli.main(["validate", "x.nc"]) == code
+    # a run started in the background (nohup, a CI runner) inherits SIGINT ignored, and calib leaves an ignored
+    # signal alone: give this process the disposition a terminal gives for the test
+    old = signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+    try:
+        assert cli.main(["validate", "x.nc"]) == code
+    finally:
+        signal.signal(signum, old)
     err = capsys.readouterr().err
     assert f"calib validate: interrupted by {name}" in err and "internal error" not in err
     monkeypatch.setattr(cli, "cmd_validate", lambda a: (_ for _ in ()).throw(ImportError("a bug")))
