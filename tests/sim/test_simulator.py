@@ -638,3 +638,34 @@ def test_calibration_session_dataset_for_another_seed(noisy):
     own = simulate.calibration_session_dataset(sim)  # the simulator's own seed, everything computed here
     assert not np.array_equal(own["accel"].values, ds["accel"].values)
     np.testing.assert_array_equal(own["table_angle"].values, ds["table_angle"].values)
+
+
+@pytest.mark.parametrize("quantize", [True, False])
+def test_noise_and_count_is_the_stated_recursion(quantize):
+    """The compiled noise and pulse counter (blocks of rows through two kernels) against the recursion of its
+    docstring written out in plain Python: beta_i = a beta_(i-1) + c z_i, inc_i = clean_i + K (sig_w z_i + beta_i dt),
+    counts_i = floor(r + inc_i) with the fraction r carried -- to the bit, over more than one block of rows and on
+    broadcast (constant) clean increments."""
+    rng = np.random.default_rng(20261126)
+    n, dt = 9000, 0.01
+    z = rng.standard_normal((n, 12))
+    sig_w, c, K = rng.random(6), rng.random(6) * 1e-3, 1e4 * (0.5 + rng.random(6))
+    a = np.array([1.0, 0.999, 0.99, 1.0, 0.999, 0.9])
+    for clean in (rng.normal(size=(n, 6)) * 1e3, np.broadcast_to(rng.normal(size=6) * 1e3, (n, 6))):
+        beta, carry = np.full(6, 0.1), np.full(6, 0.3)
+        inc = np.empty((n, 6))
+        counts = np.empty((n, 6), dtype=np.int64) if quantize else inc
+        simulate._noise_and_count(clean, z, sig_w, a, c, K, dt, beta, carry, quantize, inc, counts)
+        b, r = [0.1] * 6, [0.3] * 6
+        want_inc, want_counts = np.empty((n, 6)), np.empty((n, 6), dtype=np.int64)
+        for i in range(n):
+            for j in range(6):
+                b[j] = float(a[j]) * b[j] + float(c[j]) * float(z[i, 6 + j])
+                x = float(clean[i, j]) + float(K[j]) * (float(sig_w[j]) * float(z[i, j]) + b[j] * dt)
+                want_inc[i, j] = x
+                q = math.floor(r[j] + x)
+                want_counts[i, j], r[j] = q, r[j] + x - q
+        assert np.array_equal(inc, want_inc)
+        assert np.array_equal(beta, b)
+        if quantize:
+            assert np.array_equal(counts, want_counts) and np.array_equal(carry, r)

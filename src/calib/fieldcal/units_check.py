@@ -29,10 +29,10 @@ from scipy.optimize import minimize_scalar
 
 from calib.core.errors import InputError
 from calib.fieldcal.gyroscope import (
-    _qdot,
     direction_angles_deg,
     integrate_quaternions,
     quats_to_dcm,
+    rk4_step,
 )
 
 MIN_PAIR_ANGLE_DEG = 10.0
@@ -136,27 +136,13 @@ def _integrate_scaled(w0, step, starts, stops, scales):  # pragma: no cover - co
         q3[:] = 0.0
         for j in range(starts[i], stops[i]):
             h = step[j]
-            c = h / 6.0
             a0, a1, a2 = w0[j, 0], w0[j, 1], w0[j, 2]
             b0, b1, b2 = w0[j + 1, 0], w0[j + 1, 1], w0[j + 1, 2]
             for k in range(ns):
                 s = scales[k]
                 ax, ay, az = a0 * s, a1 * s, a2 * s
                 bx, by, bz = b0 * s, b1 * s, b2 * s
-                mx, my, mz = 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz)
-                p0, p1, p2, p3 = q0[k], q1[k], q2[k], q3[k]
-                k10, k11, k12, k13 = _qdot(p0, p1, p2, p3, ax, ay, az)
-                k20, k21, k22, k23 = _qdot(p0 + 0.5 * h * k10, p1 + 0.5 * h * k11, p2 + 0.5 * h * k12,
-                                           p3 + 0.5 * h * k13, mx, my, mz)
-                k30, k31, k32, k33 = _qdot(p0 + 0.5 * h * k20, p1 + 0.5 * h * k21, p2 + 0.5 * h * k22,
-                                           p3 + 0.5 * h * k23, mx, my, mz)
-                k40, k41, k42, k43 = _qdot(p0 + h * k30, p1 + h * k31, p2 + h * k32, p3 + h * k33, bx, by, bz)
-                p0 = p0 + c * (k10 + 2.0 * k20 + 2.0 * k30 + k40)
-                p1 = p1 + c * (k11 + 2.0 * k21 + 2.0 * k31 + k41)
-                p2 = p2 + c * (k12 + 2.0 * k22 + 2.0 * k32 + k42)
-                p3 = p3 + c * (k13 + 2.0 * k23 + 2.0 * k33 + k43)
-                nq = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2 + p3 * p3)
-                q0[k], q1[k], q2[k], q3[k] = p0 / nq, p1 / nq, p2 / nq, p3 / nq
+                q0[k], q1[k], q2[k], q3[k] = rk4_step(q0[k], q1[k], q2[k], q3[k], ax, ay, az, bx, by, bz, h)
         for k in range(ns):
             out[k, i, 0], out[k, i, 1], out[k, i, 2], out[k, i, 3] = q0[k], q1[k], q2[k], q3[k]
     return out

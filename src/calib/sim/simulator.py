@@ -308,33 +308,10 @@ class _BlockNormals:
 
 
 @numba.njit(cache=True)
-def _noise_and_count(clean, z, sig_w, a, c, K, dt, beta, carry, quantize, inc, counts):  # pragma: no cover
-    """Add noise to the clean increments and run the pulse counter, channel by channel (6 channels).
-
-    z[:, j] white-noise normal of channel j, z[:, 6 + j] the bias-instability driving normal.
-    beta_i = a beta_{i-1} + c z_i (Gauss-Markov with a < 1, random walk with a = 1), input units.
-    inc_i = clean_i + K (sig_w z_i + beta_i dt)  [count]; pulse counter: counts_i = floor(r + inc_i), the
-    fraction r in [0, 1) carried. ``beta`` and ``carry`` (length 6) are updated in place.
-    """
-    n = inc.shape[0]
-    for i in range(n):  # row-major: sample by sample, the 6 channels inside
-        for j in range(6):
-            s = a[j] * beta[j] + c[j] * z[i, 6 + j]
-            beta[j] = s
-            x = clean[i, j] + K[j] * (sig_w[j] * z[i, j] + s * dt)
-            inc[i, j] = x
-            if quantize:
-                r = carry[j] + x
-                q = math.floor(r)
-                counts[i, j] = q
-                carry[j] = r - q
-
-
-@numba.njit(cache=True)
 def _noise_increments(z, sig_w, a, c, K, dt, beta, out):  # pragma: no cover
-    """The noise part of :func:`_noise_and_count` alone: ``out[i, j] = K (sig_w z_i + beta_i dt)`` [count] with the
-    same recursion of beta (updated in place) and the same operations in the same order, so that ``clean + out``
-    is the increment :func:`_noise_and_count` forms, to the bit."""
+    """The noise of the increments: ``out[i, j] = K (sig_w z_i + beta_i dt)`` [count], beta (updated in place) by
+    the recursion of :func:`_noise_and_count`. Alone where the noise of a session is drawn once and shared
+    (:meth:`CalibrationSimulator.noise_increments`); ``clean + out`` is then the increment to the bit."""
     n = out.shape[0]
     for i in range(n):
         for j in range(6):
@@ -357,6 +334,26 @@ def _count(clean, noise, carry, quantize, inc, counts):  # pragma: no cover
                 q = math.floor(r)
                 counts[i, j] = q
                 carry[j] = r - q
+
+
+@numba.njit(cache=True)
+def _noise_and_count(clean, z, sig_w, a, c, K, dt, beta, carry, quantize, inc, counts):  # pragma: no cover
+    """Add noise to the clean increments and run the pulse counter (6 channels): :func:`_noise_increments` then
+    :func:`_count`, a block of rows at a time (the noise of a block stays in cache; one implementation of each).
+
+    z[:, j] white-noise normal of channel j, z[:, 6 + j] the bias-instability driving normal.
+    beta_i = a beta_{i-1} + c z_i (Gauss-Markov with a < 1, random walk with a = 1), input units.
+    inc_i = clean_i + K (sig_w z_i + beta_i dt)  [count]; pulse counter: counts_i = floor(r + inc_i), the
+    fraction r in [0, 1) carried. ``beta`` and ``carry`` (length 6) are updated in place.
+    """
+    n = inc.shape[0]
+    block = 4096
+    noise = np.empty((min(n, block), 6))
+    for i0 in range(0, n, block):
+        i1 = min(n, i0 + block)
+        nb = noise[:i1 - i0]
+        _noise_increments(z[i0:i1], sig_w, a, c, K, dt, beta, nb)
+        _count(clean[i0:i1], nb, carry, quantize, inc[i0:i1], counts[i0:i1])
 
 
 @dataclass
