@@ -183,8 +183,11 @@ def test_proof_stage_products(tmp_path):
     assert nc["correct"].sel(session="time_offset").values.tolist() == [1, 1, 1]
     assert "power_scale" in nc and (tmp_path / "power.png").stat().st_size > 0
     assert (tmp_path / "power.csv").read_text().startswith("effect,smallest_scale_80pct")
-    # wall times never enter the scientific files
+    # wall times never enter the scientific files, nor the name of a temporary folder (same config, same bytes)
     assert "elapsed" not in (tmp_path / "proof.json").read_text()
+    for f in (tmp_path / "end_to_end").rglob("report.*"):
+        assert "calib-proof-" not in f.read_text(), f
+    assert json.loads((tmp_path / "end_to_end" / "null_a" / "report.json").read_text())["recording"].startswith("null_a")
     assert "total_s" in (tmp_path / "timings.json").read_text()
     assert out["acceptance"]["null_a"]["false_discoveries_le_5pct"]
 

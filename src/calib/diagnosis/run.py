@@ -84,7 +84,8 @@ def _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from=None):
     return rep, prob
 
 
-def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_source: str = "") -> dict:
+def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_source: str = "",
+                       name: str | None = None) -> dict:
     """``calib diagnose RECORDING.nc --out DIR``: writes DIR/report.json, DIR/report.md and figures.
 
     Works on any ``calib-recording-1`` file with a segment table (synthetic or imported; an imported
@@ -92,13 +93,17 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
     field calibration used -- or else static segments from :func:`calib.signal.detect.detect_in_recording`). Bad input
     (unreadable file, too short, too few segments, failed calibration, no noise estimate) gives a report
     with verdict ``inconclusive`` and the reason -- never a finding. ``out_dir`` None: nothing is written.
+    ``name``: what the report calls the recording (default: ``path``; e.g. for a temporary file, whose path would
+    make the report differ from run to run).
     """
     st = {**DEFAULT_SETTINGS, **(settings or {})}
     ds, refusal = load_for_diagnosis(path, st, intervals, intervals_source)
     if refusal is not None:
+        if name is not None:
+            refusal["recording"] = str(name)
         _write_refusal(refusal, out_dir)
         return refusal
-    rep, _ = diagnose_dataset(ds, out_dir, st, path=path)
+    rep, _ = diagnose_dataset(ds, out_dir, st, path=path if name is None else name)
     return rep
 
 

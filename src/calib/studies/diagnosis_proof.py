@@ -263,7 +263,8 @@ def _proof_worker(args):
         # end to end: the simulator's own file through diagnose_recording, scored against its sidecar
         e2e_dir = Path(out_dir) / "end_to_end" / name if out_dir else None
         if e2e_dir is not None and scale == 1.0:
-            rep0 = diagnose_recording(fsn.path, e2e_dir, {**(settings or {}), "figures": True})
+            rep0 = diagnose_recording(fsn.path, e2e_dir, {**(settings or {}), "figures": True},
+                                      name=f"{name}: the proof's simulated session (a temporary file)")
             e2e = score(rep0, fsn.truth_path, kind)
         else:
             e2e = None
