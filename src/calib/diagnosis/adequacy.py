@@ -23,8 +23,9 @@ import math
 
 import numpy as np
 
+from calib.core.distributions import chi2_sf
 from calib.diagnosis.geometry import AXES, SENSORS
-from calib.diagnosis.problem import Fit, Problem, chi2_sf
+from calib.diagnosis.problem import Fit, Problem
 
 
 def measured_factors(prob: Problem) -> dict:

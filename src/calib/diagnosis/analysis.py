@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from calib.core.distributions import chi2_sf
 from calib.diagnosis.adequacy import adequacy, measured_factors, unexplained_entries
 from calib.diagnosis.blas import solve_lower
 from calib.diagnosis.fitting import chi2_rank, fit
@@ -17,7 +18,7 @@ from calib.diagnosis.identifiability import discrimination_noncentrality, librar
 from calib.diagnosis.library import EXPERIMENTS, build_library
 from calib.diagnosis.locate import block_table, locate
 from calib.diagnosis.noise import covariance_blocks, profile_noise, shape_eig
-from calib.diagnosis.problem import Fit, Problem, base_estimates, chi2_sf, lstsq
+from calib.diagnosis.problem import Fit, Problem, base_estimates, lstsq
 from calib.diagnosis.selection import is_slow, renoise, stepwise, testable_keys
 
 def slow_se_marginal(prob: Problem, f: Fit, key) -> np.ndarray | None:

@@ -39,11 +39,12 @@ import math
 
 import numpy as np
 
+from calib.core.distributions import chi2_sf, f_sf
 from calib.diagnosis.adequacy import holm, measured_factors
 from calib.diagnosis.fitting import fit
 from calib.diagnosis.geometry import AXES, SENSORS, TO_MODEL
 from calib.diagnosis.library import _reduce_term, sample_context
-from calib.diagnosis.problem import Fit, Problem, base_estimates, chi2_sf, f_sf
+from calib.diagnosis.problem import Fit, Problem, base_estimates
 
 #: periods of the sinusoids of the time family: the span divided by these
 PERIOD_DIVISORS = (1, 2, 3, 4, 5, 6)

@@ -8,8 +8,9 @@ import math
 
 import numpy as np
 
+from calib.core.distributions import chi2_sf
 from calib.diagnosis.geometry import AXES, ROWS, SENSORS
-from calib.diagnosis.problem import Fit, Problem, base_estimates, chi2_sf
+from calib.diagnosis.problem import Fit, Problem, base_estimates
 
 def block_table(prob: Problem, f: Fit):
     """chi-square of fit ``f`` per (sensor, axis) block, with its share of the total."""

@@ -15,11 +15,12 @@ from scipy.optimize import least_squares
 from calib.calibration import objectives as ob
 from calib.calibration.ellipsoid import fit_ellipsoid
 from calib.core.triad import MIN_POSES_TO_TEST
+from calib.core.distributions import chi2_sf
 from calib.core.earth import STANDARD_GRAVITY
 from calib.diagnosis.geometry import AXES, TO_MODEL, DiagnosisInputError, build_geometry, rate_readings
 from calib.diagnosis.identifiability import prepare_library
 from calib.diagnosis.library import DRIFT_TAUS, EXPERIMENTS, Candidate, window_nodes, zero_params
-from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, chi2_sf, lstsq
+from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, lstsq
 from calib.signal import allan
 from calib.sim import effects
 

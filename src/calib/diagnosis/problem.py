@@ -5,8 +5,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import special
 
+from calib.core.distributions import chi2_sf
 from calib.diagnosis import kernels
 from calib.diagnosis.blas import pivoted_qr, solve_lower, solve_tri
 from calib.diagnosis.geometry import BASE_NAMES, Geometry
@@ -194,18 +194,6 @@ class Fit:
 
     def bic(self, n) -> float:
         return self.chi2 + self.k * math.log(n)
-
-
-def chi2_sf(x, df) -> float:
-    """Upper tail of the chi-square distribution, ``scipy.stats.chi2.sf(x, df)`` to the bit: the special function
-    that method evaluates (``scipy.special.chdtrc``), without the distribution object's argument handling, which
-    costs 40 times the evaluation (the diagnosis asks for thousands). Below the support (x < 0): 1."""
-    return 1.0 if x < 0 else float(special.chdtrc(df, x))
-
-
-def f_sf(x, dfn, dfd) -> float:
-    """Upper tail of the F distribution, ``scipy.stats.f.sf(x, dfn, dfd)`` to the bit (``scipy.special.fdtrc``)."""
-    return 1.0 if x < 0 else float(special.fdtrc(dfn, dfd, x))
 
 
 def base_estimates(theta):

@@ -7,10 +7,11 @@ import math
 
 import numpy as np
 
+from calib.core.distributions import chi2_sf
 from calib.diagnosis.fitting import columns, fit
 from calib.diagnosis.geometry import SENSORS
 from calib.diagnosis.noise import covariance_blocks, profile_noise, reml_slow
-from calib.diagnosis.problem import Fit, Problem, chi2_sf
+from calib.diagnosis.problem import Fit, Problem
 from calib.diagnosis.vector import reml_design
 
 def testable_keys(prob: Problem):

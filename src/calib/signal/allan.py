@@ -47,19 +47,13 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from scipy import optimize, special
+from scipy import optimize
+
+from calib.core.distributions import chi2_ppf
 
 
 class AllanError(ValueError):
     """Input that gives no usable Allan deviation (too short, flat, non-finite)."""
-
-
-def chi2_ppf(q: float, df) -> np.ndarray:
-    """Quantile ``q`` (0 < q < 1) of the chi-square distribution with ``df`` (> 0, array) degrees of freedom:
-    ``scipy.stats.chi2.ppf(q, df)`` to the bit, by the special function that method evaluates
-    (``2 gammaincinv(df / 2, q)``), without importing scipy.stats (~0.5 s of every process start that needs an
-    Allan deviation; tests/signal/test_allan.py compares the two)."""
-    return 2 * special.gammaincinv(np.asarray(df, dtype=float) / 2, q)
 
 
 def octave_clusters(n: int, max_fraction: float = 0.5) -> np.ndarray:

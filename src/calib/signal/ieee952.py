@@ -60,6 +60,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from calib.core.distributions import chi2_ppf
 from calib.signal import allan
 
 TERMS = ("Q", "N", "B", "K")
@@ -120,8 +121,8 @@ def chi2_band(adev, edf, confidence: float):
     """Lower and upper ends of the chi-square interval of an Allan deviation with ``edf`` degrees of freedom."""
     a = 1.0 - confidence
     av = np.asarray(adev, dtype=float) ** 2
-    lo = av * edf / allan.chi2_ppf(1.0 - a / 2.0, edf)
-    hi = av * edf / allan.chi2_ppf(a / 2.0, edf)
+    lo = av * edf / chi2_ppf(1.0 - a / 2.0, edf)
+    hi = av * edf / chi2_ppf(a / 2.0, edf)
     return np.sqrt(lo), np.sqrt(hi)
 
 

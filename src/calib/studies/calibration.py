@@ -401,11 +401,10 @@ def default_calibration(inp, ccfg, seed, noise: dict | None = None):
 def _inflate_if_rejected(res, p_reject: float = 1e-3):
     """With a full noise model the chi-square r^T C_r^-1 r should follow chi-square(dof); only when it rejects
     the model (upper tail p < ``p_reject``) is the covariance scaled by the reduced chi-square (noted)."""
-    from scipy import special
+    from calib.core.distributions import chi2_sf
 
     if res.dof > 0 and np.isfinite(res.chi2):
-        # scipy.stats.chi2.sf to the bit (its special function; importing scipy.stats costs ~0.5 s a process)
-        p = 1.0 if res.chi2 < 0 else float(special.chdtrc(res.dof, res.chi2))
+        p = chi2_sf(res.chi2, res.dof)
         res.derived["chi2_p"] = p
         if p < p_reject:
             f = res.chi2 / res.dof
