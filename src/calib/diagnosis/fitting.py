@@ -8,7 +8,7 @@ from scipy import optimize
 
 from calib.diagnosis import kernels
 from calib.diagnosis.library import DRIFT_TAUS
-from calib.diagnosis.problem import RANK_TOL, Fit, Problem, base_blocks, base_estimates, lstsq
+from calib.diagnosis.problem import UNPIVOTED_TOL, Fit, Problem, base_blocks, base_estimates, lstsq
 
 def _dS_dlntau(c, tau: float) -> np.ndarray:
     """Derivative of a drift candidate's columns with respect to ln(tau) at a grid point: the three-point
@@ -177,15 +177,12 @@ def chi2_rank(prob: Problem, terms, taus=None):
     if base is None or not extra:
         f = fit(prob, terms, taus=taus)
         return f.chi2, f.k
-    Sw = np.ascontiguousarray(np.hstack(extra))
-    nS = np.linalg.norm(Sw, axis=0)
-    nS[nS == 0] = 1.0
-    yw = prob.wcache("y", lambda: prob.y)
-    ss, dmin = kernels.residual_ss(base.project(Sw), nS, _y_perp(prob, base, yw), 1e3 * RANK_TOL)
-    if not dmin > 1e3 * RANK_TOL:       # a nearly dependent column: the pivoted fit decides the rank
+    Sw = np.hstack(extra)
+    ss, ok = base.unpivoted_chi2(Sw, _y_perp(prob, base, prob.wcache("y", lambda: prob.y)))
+    if not ok:       # a nearly dependent column: the pivoted fit decides the rank
         f = fit(prob, terms, taus=taus)
         return f.chi2, f.k
-    return float(ss), base.k + Sw.shape[1]
+    return ss, base.k + Sw.shape[1]
 
 
 def _offset_profile(prob: Problem, terms, taus):
@@ -205,11 +202,10 @@ def _offset_profile(prob: Problem, terms, taus):
     yw = np.ascontiguousarray(prob.wcache("y", lambda: prob.y))
     Lpad = prob.padded()
     starts, sizes, bcols = layout
-    tol = 1e3 * RANK_TOL
 
     def f(d):
         X = om.patch_design(prob.X0, float(d))
-        ss, ok = kernels.patched_chi2(X, Lpad, starts, sizes, bcols, yw, Sw, nS, tol)
+        ss, ok = kernels.patched_chi2(X, Lpad, starts, sizes, bcols, yw, Sw, nS, UNPIVOTED_TOL)
         return float(ss) if ok else profile_chi2(prob, terms, delta=float(d), taus=taus)
 
     return f

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from calib.diagnosis import kernels
 from calib.diagnosis.fitting import columns
-from calib.diagnosis.problem import RANK_TOL, Fit, Problem, lstsq
+from calib.diagnosis.problem import Fit, Problem, lstsq
 from calib.sim import effects
 
 def typical_scale(c) -> np.ndarray:
@@ -169,11 +168,9 @@ def discrimination_noncentrality(prob: Problem, final: Fit, key, other) -> float
     if base is not None and np.all(rest[:k0] == np.arange(k0)):
         # the base eliminated block by block: the rest of the final model and the candidate on what it leaves
         E = prob.whiten(np.hstack([final.X[:, rest[k0:]], np.atleast_2d(Sb.T).T]))
-        E = np.ascontiguousarray(E[:, np.linalg.norm(E, axis=0) > 0])
-        nE = np.linalg.norm(E, axis=0)
-        ss, dmin = kernels.residual_ss(base.project(E), nE, base.project(prob.whiten(sig)), 1e3 * RANK_TOL)
-        if dmin > 1e3 * RANK_TOL:
-            return float(ss)
+        ss, ok = base.unpivoted_chi2(E[:, np.linalg.norm(E, axis=0) > 0], base.project(prob.whiten(sig)))
+        if ok:
+            return ss
     B = prob.whiten(np.hstack([final.X[:, rest], np.atleast_2d(Sb.T).T]))
     B = B[:, np.linalg.norm(B, axis=0) > 0]
     Q, R = np.linalg.qr(B / np.linalg.norm(B, axis=0))

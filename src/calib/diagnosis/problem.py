@@ -232,6 +232,9 @@ def lstsq(Aw, yw, want_cov: bool = True):
 
 #: the rank cut of :func:`lstsq` on unit-norm columns (relative to the first pivot, whose norm is 1)
 RANK_TOL = 1e-9
+#: the smallest diagonal of an unpivoted factor (unit-norm columns) that the compiled fits accept; at or below it a
+#: column is nearly dependent and the pivoted solve, with its rank cut, decides instead
+UNPIVOTED_TOL = 1e3 * RANK_TOL
 
 
 def base_blocks(prob: "Problem"):
@@ -292,17 +295,25 @@ class BaseQR:
         kernels.project_blocks(self.Q, self.starts, self.sizes, np.ascontiguousarray(A2), out)
         return out.reshape(A.shape)
 
-    def chi2(self, yw, Sw=None, yp=None) -> float:
-        """The chi-square of :meth:`solve` (``yw`` on ``[base, Sw]``) alone, by one compiled call; through
-        :meth:`solve` (pivoted, with its rank cut) when a column of ``Sw`` is nearly dependent."""
-        yp = self.project(yw) if yp is None else yp
+    def unpivoted_chi2(self, Sw, yp):
+        """``(chi2, ok)``: the chi-square of the whitened observations on ``[base, Sw]`` by one compiled call on what
+        the base leaves of them (``yp``, :meth:`project`) and of ``Sw``, without pivoting; ok False when a column of
+        ``Sw`` is nearly dependent (a diagonal of its factor at or below :data:`UNPIVOTED_TOL`), where the rank cut of a
+        pivoted solve (:meth:`solve`, :func:`lstsq`) decides instead. ``Sw`` without columns: ``(|yp|^2, True)``."""
         if Sw is None or Sw.shape[1] == 0:
-            return float(yp @ yp)
+            return float(yp @ yp), True
         nS = np.linalg.norm(Sw, axis=0)
         nS[nS == 0] = 1.0
-        ss, dmin = kernels.residual_ss(self.project(Sw), nS, yp, 1e3 * RANK_TOL)
-        if dmin > 1e3 * RANK_TOL:
-            return float(ss)
+        ss, dmin = kernels.residual_ss(self.project(Sw), nS, yp, UNPIVOTED_TOL)
+        return float(ss), bool(dmin > UNPIVOTED_TOL)
+
+    def chi2(self, yw, Sw=None, yp=None) -> float:
+        """The chi-square of :meth:`solve` (``yw`` on ``[base, Sw]``) alone (:meth:`unpivoted_chi2`); through
+        :meth:`solve` (pivoted, with its rank cut) when a column of ``Sw`` is nearly dependent."""
+        yp = self.project(yw) if yp is None else yp
+        ss, ok = self.unpivoted_chi2(Sw, yp)
+        if ok:
+            return ss
         rw = self.solve(yw, Sw, want_cov=False, yp=yp)[3]
         return float(rw @ rw)
 
