@@ -302,6 +302,7 @@ class BaseQR:
         pivoted solve (:meth:`solve`, :func:`lstsq`) decides instead. ``Sw`` without columns: ``(|yp|^2, True)``."""
         if Sw is None or Sw.shape[1] == 0:
             return float(yp @ yp), True
+        Sw = np.ascontiguousarray(Sw)        # (the norms' summation order follows the memory layout)
         nS = np.linalg.norm(Sw, axis=0)
         nS[nS == 0] = 1.0
         ss, dmin = kernels.residual_ss(self.project(Sw), nS, yp, UNPIVOTED_TOL)
