@@ -16,8 +16,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from calib.figures.output import CHECK_ENV, FigureCheckError, check_mode, report_problems  # noqa: E402,F401
-from calib.io.atomic import atomic_path  # noqa: E402
+from calib.figures.output import CHECK_ENV, FigureCheckError, check_mode, write_rendered  # noqa: E402,F401
 
 STYLE = {
     "svg.hashsalt": "calib",
@@ -131,22 +130,10 @@ def _drop_spent_layout_engine(fig) -> None:
 def save(fig, path) -> Path:
     """Save ``fig`` to ``path`` (format from the suffix) deterministically and atomically; closes it.
 
-    The figure is first looked at by :func:`inspect` (see :data:`CHECK_ENV`)."""
+    The figure is first looked at by :func:`inspect` (see :data:`CHECK_ENV`): :func:`render`, then
+    :func:`calib.figures.output.write_rendered` (the one path of every figure, drawn here or in another process)."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    mode = check_mode()
-    if mode != "off":
-        problems = inspect(fig)
-        if problems and mode == "strict":
-            plt.close(fig)
-        report_problems(path, problems)
-    _drop_spent_layout_engine(fig)
-    try:
-        with atomic_path(path, suffix=suffix) as tmp, plt.rc_context(STYLE):
-            fig.savefig(tmp, format=suffix[1:], metadata=_META.get(suffix))
-    finally:
-        plt.close(fig)
-    return path
+    return write_rendered(path, *render(fig, path.suffix))
 
 
 def render(fig, suffix: str = ".png"):
