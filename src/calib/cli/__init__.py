@@ -372,39 +372,33 @@ def _diagnose_refusal(path, settings, out_dir, exc):
 # --------------------------------------------------------------------------- dispatch: one exit-code contract
 
 
-#: the signal the handler of :func:`_signals` received (None: none)
-_RECEIVED: list = [None]
-
-
-def _interrupted(exc):
-    """The interruption behind ``exc`` when a handled signal came first (what the interrupted code raised instead
-    of the KeyboardInterrupt: an extension module interrupted while it loads reports an ImportError, a library may
-    wrap it); None for an exception of its own."""
-    if _RECEIVED[0] is not None:
-        return Terminated(_RECEIVED[0]) if _RECEIVED[0] != signal.SIGINT else KeyboardInterrupt()
-    return None
-
-
 @contextlib.contextmanager
 def _signals():
     """SIGINT and SIGTERM raise KeyboardInterrupt / Terminated (the same clean path: atomic writers delete their
-    temporary files); a second signal during the clean-up is ignored."""
+    temporary files); a second signal during the clean-up is ignored. Once a signal was handled, whatever the
+    interrupted code raised instead of the interruption (an extension module interrupted while it loads reports an
+    ImportError, a library may wrap it) leaves as that interruption; an exception without a signal stays itself."""
+    received = []
+
     def handler(signum, frame):
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, signal.SIG_IGN)
-        _RECEIVED[0] = signum
+        received.append(signum)
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
         raise Terminated(signum)
 
     old = {}
-    _RECEIVED[0] = None
     with contextlib.suppress(ValueError):   # not the main thread: leave the handlers alone
         for s in (signal.SIGINT, signal.SIGTERM):
             if signal.getsignal(s) is not signal.SIG_IGN:
                 old[s] = signal.signal(s, handler)
     try:
         yield
+    except Exception as exc:  # noqa: BLE001 - what an interrupted library raised is the interruption
+        if not received:
+            raise
+        raise (KeyboardInterrupt() if received[0] == signal.SIGINT else Terminated(received[0])) from exc
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -460,15 +454,9 @@ def _dispatch(a) -> int:
     _STDOUT[0] = sys.stdout
     chatter = open(os.devnull, "w") if getattr(a, "quiet", False) else sys.stderr
     try:
-        try:
-            with _signals(), contextlib.redirect_stdout(chatter):
-                code = a.fn(a)
-            return code or 0
-        except Exception as exc:  # noqa: BLE001 - what an interrupted library raised is the interruption
-            intr = _interrupted(exc)
-            if intr is None:
-                raise
-            raise intr from exc
+        with _signals(), contextlib.redirect_stdout(chatter):
+            code = a.fn(a)
+        return code or 0
     except KeyboardInterrupt as exc:
         sig = "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
         _say(f"{name}: interrupted by {sig}; no partial output left, earlier outputs kept")
@@ -568,16 +556,10 @@ def main(argv=None):
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
     try:
-        try:
-            with _signals():   # an interrupt while the sub-commands load: the same one line as during a command
-                from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, ...)
-                formats.register(sub)
-                a = p.parse_args(argv)   # argparse's own usage errors exit 2
-        except Exception as exc:  # noqa: BLE001 - as in _dispatch
-            intr = _interrupted(exc)
-            if intr is None:
-                raise
-            raise intr from exc
+        with _signals():   # an interrupt while the sub-commands load: the same one line as during a command
+            from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, ...)
+            formats.register(sub)
+            a = p.parse_args(argv)   # argparse's own usage errors exit 2
     except KeyboardInterrupt as exc:
         _say(f"calib: interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'SIGINT'}; nothing written")
         return getattr(exc, "exit_code", EXIT_SIGINT)
