@@ -239,6 +239,26 @@ def test_malformed_json_settings_and_missing_config(tmp_path, capsys, count_sess
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.json"]
 
 
+@pytest.mark.parametrize("text, field, said", [
+    ('{"report_detial": false}', "report_detial", "unknown setting"),         # a misspelt name
+    ('{"report_detail": "no"}', "report_detail", '"no" is not true or false'),  # a string for a switch
+    ('{"alpha": 2}', "alpha", "2 is not a number in (0, 1]"),                   # a probability above 1
+    ('{"max_steps": 1.5}', "max_steps", "1.5 is not a whole number"),           # a count with a fraction
+    ('{"max_offset_s": -0.1}', "max_offset_s", "-0.1 is not a number >= 0"),
+])
+def test_diagnosis_settings_are_checked_by_name_type_and_range(tmp_path, capsys, count_session, text, field, said):
+    """A settings file the diagnosis would have read wrongly -- a misspelt name silently ignored, "no" taken as a
+    true switch -- is refused in one line naming the file, the setting, what is wrong and the default; exit 2 and
+    nothing written."""
+    s = tmp_path / "s.json"
+    s.write_text(text)
+    code, err = run(capsys, "diagnose", count_session, "--out", tmp_path / "out", "--settings", s)
+    assert code == 2, err
+    assert f"{s}: {field}: {said}" in err and "fix:" in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.json"]
+
+
 def test_navigate_refuses_a_zero_rate_and_a_calibration_of_the_wrong_kind(tmp_path, capsys, count_session):
     out = tmp_path / "nav.nc"
     for opt in (["--nav-rate", "0"], ["--output-interval", "-1"], ["--nav-rate", "nan"]):

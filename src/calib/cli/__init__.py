@@ -280,6 +280,10 @@ def _diagnose(a, h=None):
         if (settings or {}).get("figures", True):
             h.submit([("calib.figures.diagnosis:warm_up", ())])   # the plotting library, loaded meanwhile
     from calib.diagnosis import diagnose
+    from calib.diagnosis.problem import settings_of
+
+    if settings:   # names, types and ranges, refused naming the file and the setting
+        settings_of(settings, file=a.settings)
 
     try:
         _checked_input(a.recording, a.force, "recording", h, checks.get("recording"))

@@ -1,12 +1,15 @@
 """The diagnosis problem and a fit on it: settings, :class:`Problem`, :class:`Fit` and the least-squares core."""
 from __future__ import annotations
 
+import json
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from calib.core.distributions import chi2_sf
+from calib.core.errors import InputError
 from calib.diagnosis import kernels
 from calib.diagnosis.blas import pivoted_qr, solve_lower, solve_tri
 from calib.diagnosis.geometry import BASE_NAMES, Geometry
@@ -44,6 +47,39 @@ DEFAULT_SETTINGS = {
                                  # the separations (the proof's per-seed runs, scored on verdicts and findings, skip
                                  # them; a test shows the rest of a report unchanged)
 }
+
+
+#: the settings whose value is a probability or fraction (0 < v <= 1)
+_FRACTIONS = {"alpha", "chi2_p_adequate", "adequacy_alpha", "absorbed_untestable", "visible_rel"}
+
+
+def settings_of(settings: dict | None, file=None) -> dict:
+    """:data:`DEFAULT_SETTINGS` with the overrides ``settings``, each checked against its default: an unknown name, a
+    value of another type (true/false for the switches, a number for the numbers, a whole number for the counts, a
+    path or nothing for ``noise_record``) or out of range (fractions in (0, 1], the rest >= 0) is refused by an
+    :class:`calib.core.errors.InputError` naming ``file`` (the settings file, when there is one) and the setting."""
+    out = dict(DEFAULT_SETTINGS)
+    for key, v in (settings or {}).items():
+        if key not in DEFAULT_SETTINGS:
+            raise InputError(f"unknown setting {key!r}", file=file, field=str(key),
+                             fix=f"use one of {', '.join(sorted(DEFAULT_SETTINGS))}")
+        d = DEFAULT_SETTINGS[key]
+        if isinstance(d, bool):
+            ok, want = isinstance(v, (bool, np.bool_)), "true or false"
+        elif d is None:
+            ok, want = v is None or isinstance(v, (str, os.PathLike)), "a file path or null"
+        elif isinstance(d, int):
+            ok, want = isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) and v >= 0, \
+                "a whole number >= 0"
+        else:
+            ok = (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+                  and math.isfinite(v) and (0 < v <= 1 if key in _FRACTIONS else v >= 0))
+            want = "a number in (0, 1]" if key in _FRACTIONS else "a number >= 0"
+        if not ok:
+            raise InputError(f"{json.dumps(v, default=str)} is not {want}", file=file, field=str(key),
+                             fix=f"the default is {json.dumps(d)}")
+        out[key] = v
+    return out
 
 
 @dataclass

@@ -11,7 +11,7 @@ from calib.diagnosis.analysis import analyse
 from calib.diagnosis.blas import single_thread_blas
 from calib.diagnosis.geometry import DiagnosisInputError
 from calib.diagnosis.norm import setup_norm_problem
-from calib.diagnosis.problem import DEFAULT_SETTINGS
+from calib.diagnosis.problem import settings_of
 from calib.diagnosis.report import build_report, inconclusive_report, report_markdown, start_figures
 from calib.diagnosis.vector import setup_problem
 from calib.io import recording
@@ -41,7 +41,7 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
     """Diagnose an in-memory recording. Returns (report dict, Problem or None). Writes files when
     ``out_dir`` is given. ``library_from`` / ``geometry_from``: a previous Problem on the same geometry whose
     library / geometry is reused (:func:`calib.diagnosis.vector.setup_problem`)."""
-    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    st = settings_of(settings)
     t0 = time.perf_counter()
     with single_thread_blas():
         rep, prob = _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from)
@@ -96,7 +96,7 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
     ``name``: what the report calls the recording (default: ``path``; e.g. for a temporary file, whose path would
     make the report differ from run to run).
     """
-    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    st = settings_of(settings)
     ds, refusal = load_for_diagnosis(path, st, intervals, intervals_source)
     if refusal is not None:
         if name is not None:
@@ -110,7 +110,7 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
 def load_for_diagnosis(path, settings=None, intervals=None, intervals_source: str = ""):
     """The recording at ``path`` as the diagnosis works on it: ``(dataset, None)`` with a segment table (the file's,
     the static ``intervals`` given, or static detection), or ``(None, inconclusive report)`` naming why not."""
-    st = {**DEFAULT_SETTINGS, **(settings or {})}
+    st = settings_of(settings)
     try:
         ds = recording.load(path)
     except (RecordingError, OSError, ValueError) as exc:

@@ -21,7 +21,8 @@ import xarray as xr
 
 from calib.core.errors import ResultCheckError
 from calib.core.progress import Progress
-from calib.diagnosis import DEFAULT_SETTINGS, diagnose_recording, is_shape_parameter
+from calib.diagnosis import diagnose_recording, is_shape_parameter
+from calib.diagnosis.problem import settings_of
 from calib.figures import style as figures
 from calib.io.atomic import write_json, write_text
 from calib.io.netcdf import write_netcdf
@@ -33,11 +34,10 @@ VERDICTS = ("adequate", "missing_physics", "inconclusive", "unexplained")
 
 
 def check_settings(settings: dict | None, where: str = "diagnosis.settings") -> dict:
-    """Overrides of :data:`calib.diagnosis.DEFAULT_SETTINGS`; an unknown name is refused, naming it."""
+    """Overrides of :data:`calib.diagnosis.DEFAULT_SETTINGS`; an unknown name, a value of the wrong type or out of
+    range is refused, naming ``where`` and the setting (:func:`calib.diagnosis.problem.settings_of`)."""
     settings = dict(settings or {})
-    unknown = sorted(set(settings) - set(DEFAULT_SETTINGS))
-    if unknown:
-        raise ValueError(f"{where}: unknown setting(s) {unknown}; known: {sorted(DEFAULT_SETTINGS)}")
+    settings_of(settings, file=where)
     return settings
 
 
