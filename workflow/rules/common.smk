@@ -3,7 +3,7 @@ import glob
 import json
 import os
 
-from calib.studies.stages import session_seed
+from calib.core.seeds import session_seed  # light: the Snakefile is parsed by every snakemake process
 
 R = config["results"]
 CAL = config["calibration"]

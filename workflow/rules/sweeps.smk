@@ -7,7 +7,7 @@ import json
 import os
 import re
 
-from calib.studies import sweeps as _sweeps
+from calib.studies import sweep_spec as _sweeps
 
 SWEEPS = _sweeps.load_all(
     config.get("sweeps", []),

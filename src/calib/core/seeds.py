@@ -20,7 +20,7 @@ import hashlib
 
 import numpy as np
 
-__all__ = ["name_key", "seed_sequence", "stream", "child_seed"]
+__all__ = ["name_key", "seed_sequence", "stream", "child_seed", "SESSIONS", "session_seed"]
 
 
 def name_key(name) -> int:
@@ -51,3 +51,14 @@ def stream(root, *path) -> np.random.Generator:
 def child_seed(root, *path) -> int:
     """A 63-bit integer seed for the named child stream ``path`` of ``root`` (to hand on as a number)."""
     return int(seed_sequence(root, *path).generate_state(2, np.uint32).view(np.uint64)[0] >> np.uint64(1))
+
+
+#: the synthetic sessions of a study; each draws its noise from the named child stream of ``seeds.data``
+SESSIONS = ("calibration_session", "static_check", "navigation_session", "calibration_z", "drift_noise_seeds")
+
+
+def session_seed(data_seed: int, session: str) -> int:
+    """The seed of one synthetic session of a study: the child stream ``session`` of the root ``seeds.data``."""
+    if session not in SESSIONS:
+        raise ValueError(f"unknown session {session!r}; one of {', '.join(SESSIONS)}")
+    return child_seed(int(data_seed), session)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 
 from calib.core import seeds
+from calib.core.seeds import SESSIONS, session_seed  # noqa: F401 - re-exported (the CLI, tests)
 from calib.core.progress import Progress
 from calib.io.netcdf import provenance
 from calib.sim import simulator as simulate
@@ -15,17 +16,6 @@ from calib.sim import simulator as simulate
 CAL_SESSION_KEYS = ("sample_rate_hz", "dwell_s", "step_deg", "positions_per_phase", "rotation_rates_deg_s",
                     "revolutions", "rotation_axes", "transition_s", "move_rate_deg_s", "sensor", "noise", "effects",
                     "conceal", "temperature")
-
-
-#: the synthetic sessions of a study; each draws its noise from the named child stream of ``seeds.data``
-SESSIONS = ("calibration_session", "static_check", "navigation_session", "calibration_z", "drift_noise_seeds")
-
-
-def session_seed(data_seed: int, session: str) -> int:
-    """The seed of one synthetic session of a study: the child stream ``session`` of the root ``seeds.data``."""
-    if session not in SESSIONS:
-        raise ValueError(f"unknown session {session!r}; one of {', '.join(SESSIONS)}")
-    return seeds.child_seed(int(data_seed), session)
 
 
 def _site(site):
