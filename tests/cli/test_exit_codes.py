@@ -166,6 +166,55 @@ def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, cap
     capsys.readouterr()
 
 
+@pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
+def test_a_signal_landing_in_a_destructor_still_interrupts(monkeypatch, capsys, signum, code, name):
+    """A signal whose interruption is raised inside a ``__del__`` (llvmlite frees its objects so while numba loads
+    its cache: seen as "Exception ignored ... Traceback" on the terminal and the command running on to its end) is
+    not lost: the command stops with the interruption's code and line, nothing of a traceback printed, and the work
+    after it never runs."""
+    reached = []
+
+    class Freed:
+        def __del__(self):
+            os.kill(os.getpid(), signum)
+            time.sleep(0.05)   # the handler runs in here: its exception cannot leave a destructor
+
+    def work(a):
+        Freed()
+        for _ in range(300):   # 3 s of work after the signal; an interruption raised again lands in here
+            time.sleep(0.01)
+        reached.append("the end")
+        return 0
+
+    monkeypatch.setattr(cli, "cmd_validate", work)
+    old = signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+    try:
+        assert cli.main(["validate", "x.nc"]) == code
+    finally:
+        signal.signal(signum, old)
+    err = capsys.readouterr().err
+    assert f"calib validate: interrupted by {name}" in err, err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert reached == []
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_after_the_outcome_changes_nothing(tmp_path, signum):
+    """The command's process, once its outcome is decided (here: a refusal, exit 2), ignores SIGINT / SIGTERM until
+    it has ended: Python resets its handlers while it shuts down, and a Ctrl-C then killed the process silently
+    (exit -2, no line said) after the result was complete."""
+    code = ("import os, signal, sys, time\n"
+            "from calib import cli\n"
+            f"rc = cli.main(['validate', r'{tmp_path / 'missing.nc'}'], exiting=True)\n"
+            f"os.kill(os.getpid(), {int(signum)})\n"
+            "time.sleep(0.2)\n"
+            "print('still here', rc, flush=True)\n"
+            "sys.exit(rc)\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "still here 2" in r.stdout, (r.returncode, r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr
+
+
 def test_version_prints_the_package_version_and_exits_0():
     from calib import __version__
 

@@ -377,12 +377,25 @@ def _diagnose_refusal(path, settings, out_dir, exc):
 
 
 @contextlib.contextmanager
-def _signals():
+def _signals(exiting: bool = False):
     """SIGINT and SIGTERM raise KeyboardInterrupt / Terminated (the same clean path: atomic writers delete their
     temporary files); a second signal during the clean-up is ignored. Once a signal was handled, whatever the
     interrupted code raised instead of the interruption (an extension module interrupted while it loads reports an
-    ImportError, a library may wrap it) leaves as that interruption; an exception without a signal stays itself."""
+    ImportError, a library may wrap it) leaves as that interruption; an exception without a signal stays itself.
+
+    An interruption raised where Python cannot pass it on -- inside a ``__del__`` or a weakref callback, e.g. while
+    llvmlite frees its objects during numba's cache loading -- would be printed as "Exception ignored ... Traceback"
+    and lost, the command running on to its end. It is caught by :data:`sys.unraisablehook` instead (nothing
+    printed) and raised again 10 ms later from a SIGALRM timer, where it can propagate; should that be impossible,
+    the end of the block raises it.
+
+    ``exiting``: the process ends right after the block (the ``calib`` command): SIGINT and SIGTERM are then left
+    ignored instead of restored. The outcome is decided and written; while Python shuts down it resets its
+    handlers to the default, so a Ctrl-C arriving then would kill the process silently (exit -2, no line said)."""
     received = []
+
+    def interruption():
+        return KeyboardInterrupt() if received[0] == signal.SIGINT else Terminated(received[0])
 
     def handler(signum, frame):
         for s in (signal.SIGINT, signal.SIGTERM):
@@ -392,20 +405,43 @@ def _signals():
             raise KeyboardInterrupt
         raise Terminated(signum)
 
+    def again(signum, frame):
+        raise interruption()
+
+    previous_hook = sys.unraisablehook
+    rearm = hasattr(signal, "setitimer") and hasattr(signal, "SIGALRM")
+
+    def unraisable(info):
+        if received and isinstance(info.exc_value, KeyboardInterrupt):   # our interruption, swallowed
+            if rearm:
+                signal.setitimer(signal.ITIMER_REAL, 0.01)
+            return
+        previous_hook(info)
+
     old = {}
     with contextlib.suppress(ValueError):   # not the main thread: leave the handlers alone
         for s in (signal.SIGINT, signal.SIGTERM):
             if signal.getsignal(s) is not signal.SIG_IGN:
                 old[s] = signal.signal(s, handler)
+        if old and rearm:
+            old[signal.SIGALRM] = signal.signal(signal.SIGALRM, again)
+    if old:
+        sys.unraisablehook = unraisable
     try:
         yield
+        if received:   # swallowed and not raised again: the work went on to its end, still it was interrupted
+            raise interruption()
     except Exception as exc:  # noqa: BLE001 - what an interrupted library raised is the interruption
         if not received:
             raise
-        raise (KeyboardInterrupt() if received[0] == signal.SIGINT else Terminated(received[0])) from exc
+        raise interruption() from exc
     finally:
+        if old:
+            sys.unraisablehook = previous_hook
+            if rearm:
+                signal.setitimer(signal.ITIMER_REAL, 0)
         for s, h in old.items():
-            signal.signal(s, h)
+            signal.signal(s, signal.SIG_IGN if exiting and s in (signal.SIGINT, signal.SIGTERM) else h)
 
 
 def _say(text):
@@ -446,7 +482,7 @@ def _one_line_warning(message, category, filename, lineno, line=None):
     return f"warning: {' '.join(str(message).split())}\n"
 
 
-def _dispatch(a) -> int:
+def _dispatch(a, exiting: bool = False) -> int:
     """Run the sub-command and map every outcome to the exit-code contract (calib.core.errors.EXIT_CODES)."""
     import warnings
 
@@ -458,7 +494,7 @@ def _dispatch(a) -> int:
     _STDOUT[0] = sys.stdout
     chatter = open(os.devnull, "w") if getattr(a, "quiet", False) else sys.stderr
     try:
-        with _signals(), contextlib.redirect_stdout(chatter):
+        with _signals(exiting), contextlib.redirect_stdout(chatter):
             code = a.fn(a)
         return code or 0
     except KeyboardInterrupt as exc:
@@ -489,7 +525,7 @@ def _dispatch(a) -> int:
             chatter.close()
 
 
-def main(argv=None):
+def main(argv=None, *, exiting: bool = False):
     p = argparse.ArgumentParser(prog="calib", description=__doc__, epilog=EPILOG,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"calib {__version__}")
@@ -567,6 +603,10 @@ def main(argv=None):
     except KeyboardInterrupt as exc:
         _say(f"calib: interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'SIGINT'}; nothing written")
         return getattr(exc, "exit_code", EXIT_SIGINT)
-    return _dispatch(a)
+    return _dispatch(a, exiting)
 
 
+def run():
+    """The ``calib`` command (``python -m calib.cli`` too): :func:`main`, then the process ends with its exit code;
+    an interrupt after the outcome is decided changes nothing (:func:`_signals`, ``exiting``)."""
+    sys.exit(main(exiting=True))
