@@ -2,8 +2,8 @@
 """Set up calib in its own virtual environment and run the study or the tests.
 
     python3 run.py study   # create .venv, install, run the full default study (config/config.yaml)
-    python3 run.py test    # create/reuse .venv, install, run pytest (one worker per core), the import-layer contract,
-                           # snakemake --lint and the .test workflow
+    python3 run.py test    # create/reuse .venv, install, run pytest (one worker per core) with the .test workflow
+                           # beside it, the import-layer contract, snakemake --lint and the CF check of the .test products
 
 Needs only Python >= 3.11 and pip. Extra arguments after the verb go to snakemake (study) or pytest (test).
 """
@@ -26,6 +26,47 @@ def sh(*cmd, **kw):
     r = subprocess.run([str(c) for c in cmd], cwd=kw.pop("cwd", ROOT), **kw)
     if r.returncode != 0:
         sys.exit(r.returncode)
+
+
+class Beside:
+    """A command run in the background while the tests run (the .test workflow: neither uses both cores all the
+    time -- the tests wait on subprocesses, the workflow on its one-after-the-other rules -- so side by side they
+    take about 40 s less than one after the other on two cores). Its output goes to ``log`` and is printed whole
+    by :meth:`finish`, which fails as :func:`sh` does; leaving the block any other way (a failed test, Ctrl-C)
+    stops it with its process group."""
+
+    def __init__(self, what, log, *cmd, env=None):
+        self.what, self.log, self.cmd, self.env, self.proc = what, Path(log), [str(c) for c in cmd], env, None
+
+    def __enter__(self):
+        self.log.parent.mkdir(parents=True, exist_ok=True)
+        print(f"+ {' '.join(self.cmd)}  (beside the tests; output in {self.log.relative_to(ROOT)})", flush=True)
+        with open(self.log, "w") as fh:
+            self.proc = subprocess.Popen(self.cmd, cwd=ROOT, env=self.env, stdout=fh, stderr=subprocess.STDOUT,
+                                         start_new_session=os.name != "nt")
+        return self
+
+    def finish(self):
+        if self.proc.poll() is None:
+            print(f"waiting for {self.what} ...", flush=True)
+        rc = self.proc.wait()
+        print(f"---- {self.what}: {' '.join(self.cmd)}", flush=True)
+        print(self.log.read_text(errors="replace"), end="", flush=True)
+        print(f"---- {self.what}: exit {rc}", flush=True)
+        if rc != 0:
+            sys.exit(rc)
+
+    def __exit__(self, *exc):
+        if self.proc.poll() is None:   # the tests failed or were interrupted: the workflow stops too
+            import signal
+
+            try:
+                os.killpg(self.proc.pid, signal.SIGTERM) if os.name != "nt" else self.proc.terminate()
+                self.proc.wait(timeout=60)
+            except (OSError, subprocess.TimeoutExpired):
+                self.proc.kill()
+            print(f"{self.what} stopped (log: {self.log.relative_to(ROOT)})", flush=True)
+        return False
 
 
 def setup():
@@ -70,12 +111,15 @@ def main(argv):
         os.environ.setdefault("PIP_COMPILE", "0")
         os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
         env = setup()
-        sh(PY, "-m", "pytest", "-q", *pytest_workers(rest), *rest, env=env)
-        sh(BIN / "lint-imports", env=env)  # the layer contract of pyproject.toml [tool.importlinter]
-        sh(BIN / "snakemake", "--lint", "--configfile", ".test/config.yaml", env=env)
         env_strict = dict(env, CALIB_FIGURE_CHECK="strict")  # a figure with an empty panel, etc. fails the rule
-        sh(BIN / "snakemake", "--profile", "workflow/profiles/default", "--configfile", ".test/config.yaml",
-           env=env_strict)
+        chain = Beside("the .test workflow", ROOT / ".test" / "results" / "logs" / "test_chain.log",
+                       BIN / "snakemake", "--profile", "workflow/profiles/default", "--configfile", ".test/config.yaml",
+                       env=env_strict)
+        with chain:
+            sh(PY, "-m", "pytest", "-q", *pytest_workers(rest), *rest, env=env)
+            sh(BIN / "lint-imports", env=env)  # the layer contract of pyproject.toml [tool.importlinter]
+            sh(BIN / "snakemake", "--lint", "--configfile", ".test/config.yaml", env=env)
+            chain.finish()
         # CF-1.11 oracle on every kind of netCDF the workflow writes (one optimizer run file stands for all)
         res = ROOT / ".test" / "results"
         ncs = sorted(p for p in res.rglob("*.nc") if p.parent.name != "runs") + [res / "calibration" / "runs" /
