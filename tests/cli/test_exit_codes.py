@@ -140,6 +140,16 @@ def test_signals_leave_no_partial_file_and_keep_the_earlier_output(tmp_path, sig
     assert sorted(os.listdir(tmp_path)) == ["nav.nc"]
 
 
+def _main_as_from_a_terminal(signum, argv) -> int:
+    """``cli.main(argv)`` with ``signum`` disposed as a terminal gives it: a run started in the background (nohup, a
+    CI runner) inherits SIGINT ignored, and calib leaves an ignored signal alone."""
+    old = signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+    try:
+        return cli.main(argv)
+    finally:
+        signal.signal(signum, old)
+
+
 @pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
 def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, capsys, signum, code, name):
     """A signal that lands inside an extension module while it loads comes back as that module's ImportError
@@ -152,13 +162,7 @@ def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, cap
             raise ImportError("initialization failed") from None
 
     monkeypatch.setattr(cli, "cmd_validate", interrupted_import)
-    # a run started in the background (nohup, a CI runner) inherits SIGINT ignored, and calib leaves an ignored
-    # signal alone: give this process the disposition a terminal gives for the test
-    old = signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
-    try:
-        assert cli.main(["validate", "x.nc"]) == code
-    finally:
-        signal.signal(signum, old)
+    assert _main_as_from_a_terminal(signum, ["validate", "x.nc"]) == code
     err = capsys.readouterr().err
     assert f"calib validate: interrupted by {name}" in err and "internal error" not in err
     monkeypatch.setattr(cli, "cmd_validate", lambda a: (_ for _ in ()).throw(ImportError("a bug")))
@@ -187,11 +191,7 @@ def test_a_signal_landing_in_a_destructor_still_interrupts(monkeypatch, capsys, 
         return 0
 
     monkeypatch.setattr(cli, "cmd_validate", work)
-    old = signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
-    try:
-        assert cli.main(["validate", "x.nc"]) == code
-    finally:
-        signal.signal(signum, old)
+    assert _main_as_from_a_terminal(signum, ["validate", "x.nc"]) == code
     err = capsys.readouterr().err
     assert f"calib validate: interrupted by {name}" in err, err
     assert "Traceback" not in err and "Exception ignored" not in err, err
