@@ -9,6 +9,7 @@ Needs only Python >= 3.11 and pip. Extra arguments after the verb go to snakemak
 """
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -40,7 +41,7 @@ class Beside:
 
     def __enter__(self):
         self.log.parent.mkdir(parents=True, exist_ok=True)
-        print(f"+ {' '.join(self.cmd)}  (beside the tests; output in {self.log.relative_to(ROOT)})", flush=True)
+        print(f"+ {self.what}, beside the tests (output in {self.log.relative_to(ROOT)})", flush=True)
         with open(self.log, "w") as fh:
             self.proc = subprocess.Popen(self.cmd, cwd=ROOT, env=self.env, stdout=fh, stderr=subprocess.STDOUT,
                                          start_new_session=os.name != "nt")
@@ -50,7 +51,7 @@ class Beside:
         if self.proc.poll() is None:
             print(f"waiting for {self.what} ...", flush=True)
         rc = self.proc.wait()
-        print(f"---- {self.what}: {' '.join(self.cmd)}", flush=True)
+        print(f"---- {self.what} ({self.log.relative_to(ROOT)}):", flush=True)
         print(self.log.read_text(errors="replace"), end="", flush=True)
         print(f"---- {self.what}: exit {rc}", flush=True)
         if rc != 0:
@@ -112,9 +113,14 @@ def main(argv):
         os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
         env = setup()
         env_strict = dict(env, CALIB_FIGURE_CHECK="strict")  # a figure with an empty panel, etc. fails the rule
+        # the workflow's first diagnosis alone first: in a fresh clone it compiles numba's diagnosis kernels (~10 s of
+        # CPU) and caches them; the rules after it (both proofs' workers, the real recordings) then load them instead
+        # of each compiling them again at the same time (seen: 44 s for the diagnose rule beside pytest, 5 s warm)
+        smk = [str(BIN / "snakemake"), "--profile", "workflow/profiles/default", "--configfile", ".test/config.yaml"]
+        first = [smk[0], ".test/results/diagnosis/report.json", *smk[1:]]   # (the target before --configfile's list)
         chain = Beside("the .test workflow", ROOT / ".test" / "results" / "logs" / "test_chain.log",
-                       BIN / "snakemake", "--profile", "workflow/profiles/default", "--configfile", ".test/config.yaml",
-                       env=env_strict)
+                       sys.executable, Path(__file__).resolve(), "_in_turn",
+                       json.dumps([[{"CALIB_TRACKING": "0"}, first], [{}, smk]]), env=env_strict)   # one tracked run
         with chain:
             sh(PY, "-m", "pytest", "-q", *pytest_workers(rest), *rest, env=env)
             sh(BIN / "lint-imports", env=env)  # the layer contract of pyproject.toml [tool.importlinter]
@@ -127,6 +133,12 @@ def main(argv):
         sh(PY, "tools/cf_check.py", *map(str, ncs), env=env)
     elif verb == "setup":
         setup()
+    elif verb == "_in_turn":   # (for Beside) the [extra env, command] of a JSON list in turn; stops at a failure
+        for extra, cmd in json.loads(rest[0]):
+            print("+", " ".join(f"{k}={v}" for k, v in extra.items()), " ".join(cmd), flush=True)
+            rc = subprocess.run(cmd, cwd=ROOT, env={**os.environ, **extra}).returncode
+            if rc != 0:
+                sys.exit(rc)
     else:
         print(__doc__)
         sys.exit(0 if verb in ("help", "-h", "--help") else 2)
