@@ -9,7 +9,6 @@ Needs only Python >= 3.11 and pip. Extra arguments after the verb go to snakemak
 """
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -113,14 +112,10 @@ def main(argv):
         os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
         env = setup()
         env_strict = dict(env, CALIB_FIGURE_CHECK="strict")  # a figure with an empty panel, etc. fails the rule
-        # the workflow's first diagnosis alone first: in a fresh clone it compiles numba's diagnosis kernels (~10 s of
-        # CPU) and caches them; the rules after it (both proofs' workers, the real recordings) then load them instead
-        # of each compiling them again at the same time (seen: 44 s for the diagnose rule beside pytest, 5 s warm)
-        smk = [str(BIN / "snakemake"), "--profile", "workflow/profiles/default", "--configfile", ".test/config.yaml"]
-        first = [smk[0], ".test/results/diagnosis/report.json", *smk[1:]]   # (the target before --configfile's list)
+        # the small workflow on its own profile (.test/config.yaml, a thread a rule, the proof first: in a fresh clone
+        # it compiles numba's diagnosis kernels, which the diagnosis rules after it then load from the cache)
         chain = Beside("the .test workflow", ROOT / ".test" / "results" / "logs" / "test_chain.log",
-                       sys.executable, Path(__file__).resolve(), "_in_turn",
-                       json.dumps([[{"CALIB_TRACKING": "0"}, first], [{}, smk]]), env=env_strict)   # one tracked run
+                       BIN / "snakemake", "--profile", "workflow/profiles/test", env=env_strict)
         with chain:
             sh(PY, "-m", "pytest", "-q", *pytest_workers(rest), *rest, env=env)
             sh(BIN / "lint-imports", env=env)  # the layer contract of pyproject.toml [tool.importlinter]
@@ -133,12 +128,6 @@ def main(argv):
         sh(PY, "tools/cf_check.py", *map(str, ncs), env=env)
     elif verb == "setup":
         setup()
-    elif verb == "_in_turn":   # (for Beside) the [extra env, command] of a JSON list in turn; stops at a failure
-        for extra, cmd in json.loads(rest[0]):
-            print("+", " ".join(f"{k}={v}" for k, v in extra.items()), " ".join(cmd), flush=True)
-            rc = subprocess.run(cmd, cwd=ROOT, env={**os.environ, **extra}).returncode
-            if rc != 0:
-                sys.exit(rc)
     else:
         print(__doc__)
         sys.exit(0 if verb in ("help", "-h", "--help") else 2)

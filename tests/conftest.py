@@ -11,19 +11,21 @@ from calib.sim import simulator
 #: first. With several pytest-xdist workers (``python3 run.py test``: ``--dist loadfile``) the files are handed out
 #: in this order, so that no long file starts last while the other cores run out of work. Order only: a file not
 #: listed runs after these, in collection order; a stale list costs balance, never a test.
-LONGEST_FIRST = [
-    "tests/fieldcal/test_units_check.py",
-    "tests/workflow/test_cluster.py",
+LONGEST_FIRST = [   # measured 2026-11-27 (pytest --junitxml, summed per file)
     "tests/diagnosis/test_diagnosis_proof.py",
     "tests/formats/test_noise.py",
+    "tests/cli/test_helper.py",
+    "tests/workflow/test_cluster.py",
+    "tests/fieldcal/test_units_check.py",
     "tests/studies/test_sweeps.py",
+    "tests/cli/test_exit_codes.py",
+    "tests/diagnosis/test_real_proof.py",
     "tests/fieldcal/test_default_detection.py",
     "tests/diagnosis/test_unmodelled.py",
+    "tests/sim/test_fisher.py",
     "tests/cli/test_mislabelled_shared.py",
-    "tests/cli/test_exit_codes.py",
-    "tests/calibration/test_calibration_fit.py",
-    "tests/diagnosis/test_diagnosis_findings.py",
     "tests/cli/test_refusals.py",
+    "tests/studies/test_calibration_z.py",
     "tests/studies/test_workflow_support.py",
 ]
 

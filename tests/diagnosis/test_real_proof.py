@@ -4,6 +4,7 @@ explanations. Expected answers are properties of the injected physics or of the 
 captured from the diagnosis."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -87,3 +88,20 @@ def test_degenerate_explanations_are_flagged():
          "goodness_of_fit": {"after": {"chi2": 1e-23, "dof": 12}}}
     bad = rp.degenerate_accepted(g)
     assert len(bad) == 2 and "4.9" in bad[0] and "dof" in bad[1]
+
+
+@needs_real
+def test_the_stage_gives_the_same_files_with_one_or_two_workers(tmp_path):
+    """The real-recording proof stage (the workflow's rule; the .test profile runs it on one thread) writes the same
+    bytes whether its recordings run in two forked workers or one after the other: a usable proof base (mikoff) and
+    one with too few poses (smac), each seeded by its own name."""
+    files = {}
+    for w in (2, 1):
+        out = tmp_path / f"w{w}"
+        rp.real_proof_stage(out, ROOT / "config" / "import", reps=2, n_inject=2, n_out=1, axes=("x",),
+                            recordings=["mikoff_imu0", "smac_adis16405"], workers=w, enforce=False,
+                            log=lambda *a: None)
+        files[w] = {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+    assert sorted(files[2]) == ["limits.csv", "limits.png", "real_proof.json", "real_proof.md"]
+    assert files[2] == files[1]
+    assert [r["usable"] for r in json.loads(files[2]["real_proof.json"])["recordings"]] == [True, False]
