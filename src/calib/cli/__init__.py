@@ -401,9 +401,7 @@ def _signals(exiting: bool = False):
         for s in (signal.SIGINT, signal.SIGTERM):
             signal.signal(s, signal.SIG_IGN)
         received.append(signum)
-        if signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        raise Terminated(signum)
+        raise interruption()
 
     def again(signum, frame):
         raise interruption()

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import time
 
-from calib.core import seeds
 from calib.core.seeds import SESSIONS, session_seed  # noqa: F401 - re-exported (the CLI, tests)
 from calib.core.progress import Progress
 from calib.io.netcdf import provenance
