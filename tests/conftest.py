@@ -7,6 +7,10 @@ import pytest
 
 from calib.sim import simulator
 
+#: no warm server of ``calib diagnose`` (calib.cli.server) outlives a test or serves one; tests/cli/test_server.py
+#: turns it on for its own commands, in its own socket folder
+os.environ["CALIB_SERVER"] = "off"
+
 #: the test files that take longest (CPU s on one core, or wall s where they wait on subprocesses), longest
 #: first. With several pytest-xdist workers (``python3 run.py test``: ``--dist loadfile``) the files are handed out
 #: in this order, so that no long file starts last while the other cores run out of work. Order only: a file not

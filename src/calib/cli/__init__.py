@@ -593,6 +593,9 @@ def main(argv=None, *, exiting: bool = False):
                    help="repetitions per magnitude for --limits (default 20)")
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.set_defaults(fn=cmd_diagnose)
+    s = sub.add_parser("server", help="the warm server of 'calib diagnose' (calib.cli.server): status or stop")
+    s.add_argument("action", choices=["status", "stop"])
+    s.set_defaults(fn=cmd_server)
     try:
         with _signals():   # an interrupt while the sub-commands load: the same one line as during a command
             from calib.cli import formats   # import --topic, noise, export, apply (ROS bags, Kalibr, ...)
@@ -606,5 +609,30 @@ def main(argv=None, *, exiting: bool = False):
 
 def run():
     """The ``calib`` command (``python -m calib.cli`` too): :func:`main`, then the process ends with its exit code;
-    an interrupt after the outcome is decided changes nothing (:func:`_signals`, ``exiting``)."""
-    sys.exit(main(exiting=True))
+    an interrupt after the outcome is decided changes nothing (:func:`_signals`, ``exiting``). ``calib diagnose``
+    runs in a warm server when one of the same code runs (:mod:`calib.cli.server`), and starts one after a cold
+    run."""
+    from calib.cli import server
+
+    argv = sys.argv[1:]
+    code = server.run_served(argv)
+    if code is None:
+        code = main(argv, exiting=True)
+        if code in (0, 1, 3) and server.served(argv) and server.start_background() and \
+                "-q" not in argv and "--quiet" not in argv and sys.stderr.isatty():
+            print(f"calib: started a server that keeps the libraries loaded for the next runs (idle "
+                  f"{server.idle_seconds():g} s; 'calib server stop' ends it, {server.ENV}=off turns it off)",
+                  file=sys.stderr)
+    sys.exit(code)
+
+
+def cmd_server(a):
+    from calib.cli import server
+
+    if a.action == "stop":
+        emit(f"stopped {server.stop_all()} server(s)")
+        return 0
+    rows = server.servers()
+    emit("\n".join(f"pid {pid}: key {k} ({'current code' if cur else 'other code; ends at its next request or idle'})"
+                   for k, pid, cur in rows) or "no server running")
+    return 0

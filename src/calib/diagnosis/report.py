@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -259,15 +260,26 @@ def write_figures(prob: Problem, fits, out_dir) -> list:
             pending = {name: (jid, 0) for name, (data0, jid) in early.items()
                        if any(n == name and _same_data(d, data0) for n, _, d in jobs)}
             now = [(name, kind, data) for name, kind, data in jobs if name not in pending]
+            here = {}
+            if now and pending and _plotting_warm():
+                # a warm process (forked from calib.cli.server) draws what is left itself, beside the helper's
+                # figure, instead of queueing it behind that one: the same bytes either way
+                from calib.figures import diagnosis as figs
+
+                here = {name: figs.render(kind, data) for name, kind, data in now}
+                now = []
             if now:
                 jid = h.submit([("calib.figures.diagnosis:render", (kind, data)) for _, kind, data in now])
                 pending.update({name: (jid, i) for i, (name, _, _) in enumerate(now)})
             results = {}
             for name, _, _ in jobs:   # collected in the figures' order (an exception of the first comes first)
+                if name in here:
+                    continue
                 jid = pending[name][0]
                 if jid not in results:
                     results[jid] = h.result(jid)
-            rendered = [results[pending[name][0]][pending[name][1]] for name, _, _ in jobs]
+            rendered = [here[name] if name in here else results[pending[name][0]][pending[name][1]]
+                        for name, _, _ in jobs]
         except helper.HelperError:   # the helper is gone (it writes nothing): drawn here instead
             rendered = None
         if rendered is not None:
@@ -276,6 +288,12 @@ def write_figures(prob: Problem, fits, out_dir) -> list:
     from calib.figures import diagnosis as figs, style
 
     return [str(style.save(figs.FIGURES[kind](data), out_dir / name)) for name, kind, data in jobs]
+
+
+def _plotting_warm() -> bool:
+    """Whether this process has matplotlib loaded and warm (then drawing here costs only the drawing)."""
+    mod = sys.modules.get("calib.figures.diagnosis")
+    return mod is not None and mod.warm()
 
 
 def _report_header(path, st):

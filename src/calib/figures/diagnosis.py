@@ -82,7 +82,10 @@ def render(kind: str, data, suffix: str = ".png"):
 def warm_up() -> None:
     """Load what the first figure of a process loads -- fonts, the mathtext parser of the log-axis tick labels,
     marker paths, the layout machinery -- by rendering a small log-log figure (discarded), so that the real
-    figures cost only their own drawing. Caches only: the same bytes after it."""
+    figures cost only their own drawing. Caches only: the same bytes after it. Once per process (a process
+    forked from a warmed one -- :mod:`calib.cli.server` -- is warm already)."""
+    if _WARM:
+        return
     fig, ax = style.plt.subplots(figsize=(2, 2))
     ax.loglog([1e-2, 1e2], [1e-3, 1e5], "o-", ms=3, label="x")
     ax.plot([1e-1], [1e-1], "o", mfc="none", ms=4, label="y")
@@ -90,3 +93,12 @@ def warm_up() -> None:
     ax.set_xlabel("tau [s]")
     fig.tight_layout()
     style.render(fig)
+    _WARM.append(True)
+
+
+def warm() -> bool:
+    """Whether this process has drawn its first figure (:func:`warm_up`): another figure costs only its drawing."""
+    return bool(_WARM)
+
+
+_WARM: list = []

@@ -1,0 +1,236 @@
+"""The warm server of ``calib diagnose`` (calib.cli.server): a served run is the cold run -- the same files byte for
+byte, the same lines, the same exit codes and refusals --, a signal of the command reaches its run, a command
+killed outright leaves no run behind, a command of other code is never served, and the server ends when idle.
+
+Every test here uses its own socket folder (``XDG_RUNTIME_DIR`` in a temporary folder) and stops its servers; the
+rest of the tests run with ``CALIB_SERVER=off`` (tests/conftest.py)."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from calib.cli import server
+from calib.sim import simulator
+
+ROOT = Path(__file__).resolve().parents[2]
+SHORT_SESSION = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
+#: a client that says whether a server ran the command: the marker is its last line on standard error
+CLIENT = ("import sys\nfrom calib.cli import server\ncode = server.run_served(sys.argv[1:])\n"
+          "print('SERVED' if code is not None else 'NOT SERVED', file=sys.stderr)\n"
+          "sys.exit(0 if code is None else code)\n")
+pytestmark = pytest.mark.skipif(not (hasattr(os, "fork") and hasattr(socket, "send_fds")),
+                                reason="no fork / AF_UNIX descriptor passing on this platform")
+
+
+def _env(runtime, **extra):
+    env = {**os.environ, server.ENV: "on", "XDG_RUNTIME_DIR": str(runtime), **extra}
+    env.pop("PYTEST_CURRENT_TEST", None)
+    return env
+
+
+def _sock(runtime):
+    d = Path(runtime) / f"calib-{os.getuid()}"
+    return sorted(d.glob("srv-*.sock")) if d.is_dir() else []
+
+
+def _stop(env):
+    subprocess.run([sys.executable, "-m", "calib.cli", "server", "stop"], env=env, capture_output=True, timeout=60)
+
+
+@pytest.fixture
+def short_tmp():
+    """A folder with a short path (a socket's path has at most 107 bytes; a longer runtime folder is not used)."""
+    d = Path(tempfile.mkdtemp(prefix="cs"))
+    yield d
+    shutil.rmtree(d, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def warm(tmp_path_factory):
+    """A recording, the result of a cold ``calib diagnose`` of it (which starts the server), and the server, warm."""
+    d = tmp_path_factory.mktemp("served")
+    runtime = Path(tempfile.mkdtemp(prefix="cs"))   # short: see short_tmp
+    rec = simulator.simulate_calibration_session(SHORT_SESSION, 8, d / "rec.nc")
+    env = _env(runtime)
+    cold = subprocess.run([sys.executable, "-m", "calib.cli", "diagnose", str(rec), "--out", str(d / "out")],
+                          env=env, capture_output=True, text=True, timeout=300)
+    files = {p.name: p.read_bytes() for p in sorted((d / "out").iterdir())}
+    t0 = time.monotonic()
+    while not _sock(runtime) and time.monotonic() - t0 < 120:
+        time.sleep(0.2)
+    assert _sock(runtime), "the cold run started no server"
+    yield {"dir": d, "rec": rec, "env": env, "cold": cold, "files": files, "runtime": runtime}
+    _stop(env)
+    shutil.rmtree(runtime, ignore_errors=True)
+
+
+def _served(warm, *argv, **kw):
+    return subprocess.run([sys.executable, "-c", CLIENT, *argv], env=warm["env"], capture_output=True, text=True,
+                          timeout=300, cwd=kw.get("cwd", ROOT))
+
+
+def test_a_served_run_is_the_cold_run(warm):
+    d, cold = warm["dir"], warm["cold"]
+    assert cold.returncode in (0, 1, 3), cold.stderr
+    assert len(warm["files"]) == 4   # report.json, report.md and the two figures
+    for p in (d / "out").iterdir():
+        p.unlink()
+    got = _served(warm, "diagnose", str(warm["rec"]), "--out", str(d / "out"))
+    assert got.stderr.splitlines()[-1] == "SERVED", got.stderr
+    assert got.returncode == cold.returncode
+    assert got.stdout == cold.stdout
+    assert got.stderr.rsplit("SERVED", 1)[0] == cold.stderr
+    assert {p.name: p.read_bytes() for p in sorted((d / "out").iterdir())} == warm["files"]
+
+
+def test_relative_paths_are_the_command_s_folder(warm, tmp_path):
+    """The run works in the command's folder with the command's environment: a relative --out lands there."""
+    got = _served(warm, "diagnose", str(warm["rec"]), "--out", "rel", cwd=tmp_path)
+    assert got.stderr.splitlines()[-1] == "SERVED", got.stderr
+    got = {p.name: p.read_bytes() for p in sorted((tmp_path / "rel").iterdir())}
+    assert got.keys() == warm["files"].keys()
+    assert all(got[n] == warm["files"][n] for n in got if n != "report.json")   # report.json names its figures
+    assert json.loads(got["report.json"])["figures"] == ["rel/residuals_before_after.png", "rel/allan_deviation.png"]
+
+
+def test_a_refusal_is_the_same_when_served(warm, tmp_path):
+    bad = tmp_path / "bad.nc"
+    bad.write_text("not a netCDF file\n")
+    argv = ["diagnose", str(bad), "--out", str(tmp_path / "o")]
+    cold = subprocess.run([sys.executable, "-m", "calib.cli", *argv], env={**warm["env"], server.ENV: "off"},
+                          capture_output=True, text=True, timeout=120)
+    got = _served(warm, *argv)
+    assert got.stderr.splitlines()[-1] == "SERVED", got.stderr
+    assert cold.returncode == got.returncode == 2
+    assert got.stderr.rsplit("SERVED", 1)[0] == cold.stderr and "bad.nc" in cold.stderr
+    usage = _served(warm, "diagnose", str(bad))   # argparse's usage error (no --out): its exit code 2, its text
+    assert usage.returncode == 2 and "--out" in usage.stderr
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to find the run's process")
+@pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
+def test_a_signal_of_the_command_ends_its_run(warm, tmp_path, signum, code, name):
+    out = tmp_path / "o"
+    p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
+                         env=warm["env"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _under_way(warm["runtime"])
+    p.send_signal(signum)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == code, err
+    assert f"calib diagnose: interrupted by {name}" in err
+    assert not out.exists() or list(out.iterdir()) == []
+
+
+def _under_way(runtime):
+    """Wait until the server has forked the run, then 0.3 s more (its handlers are in place; a served run of this
+    recording takes over 1 s)."""
+    t0 = time.monotonic()
+    while not _runs(runtime) and time.monotonic() - t0 < 60:
+        time.sleep(0.02)
+    assert _runs(runtime), "the server forked no run"
+    time.sleep(0.3)
+
+
+def _runs(runtime):
+    """Processes forked from the test's servers that are still alive (the server itself excluded)."""
+    pids = []
+    for k, pid, _ in _servers(runtime):
+        kids = Path(f"/proc/{pid}/task/{pid}/children")
+        if kids.exists():
+            pids += [int(x) for x in kids.read_text().split()]
+    return pids
+
+
+def _servers(runtime):
+    env = {server.ENV: "on", "XDG_RUNTIME_DIR": str(runtime)}
+    old = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        return server.servers()
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to find the run's process")
+def test_a_command_killed_outright_leaves_no_run(warm, tmp_path):
+    out = tmp_path / "o"
+    p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
+                         env=warm["env"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _under_way(warm["runtime"])
+    p.kill()
+    p.wait(timeout=30)
+    t0 = time.monotonic()
+    while _runs(warm["runtime"]) and time.monotonic() - t0 < 30:
+        time.sleep(0.1)
+    assert _runs(warm["runtime"]) == []
+    assert not out.exists() or list(out.iterdir()) == []
+
+
+def test_a_command_of_other_code_is_not_served(warm, tmp_path):
+    """A setting read while the libraries load (here NUMBA_OPT) is part of the key: that command runs cold."""
+    got = subprocess.run([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(tmp_path / "o")],
+                         env={**warm["env"], "NUMBA_OPT": "2"}, capture_output=True, text=True, timeout=120)
+    assert got.stderr.splitlines()[-1] == "NOT SERVED" and got.returncode == 0
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_key_follows_the_package_files(tmp_path, monkeypatch):
+    import calib
+
+    pkg = tmp_path / "calib"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "m.py").write_text("x = 1\n")
+    monkeypatch.setattr(calib, "__file__", str(pkg / "__init__.py"))
+    k0 = server.key()
+    assert server.key() == k0
+    (pkg / "m.py").write_text("x = 2\n")   # same size, a new modification time
+    os.utime(pkg / "m.py", ns=(time.time_ns(), time.time_ns() + 10**9))
+    assert server.key() != k0
+    monkeypatch.setenv("CALIB_SOMETHING", "1")
+    k1 = server.key()
+    monkeypatch.setenv("CALIB_SERVER_IDLE", "5")   # the server's own settings are not the code's
+    assert server.key() == k1
+
+
+def test_a_folder_others_may_enter_is_not_used(short_tmp, monkeypatch):
+    tmp_path = short_tmp
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path))
+    assert server.folder() == tmp_path / f"calib-{os.getuid()}"
+    (tmp_path / f"calib-{os.getuid()}").chmod(0o755)
+    assert server.folder() is None
+    monkeypatch.setenv(server.ENV, "on")
+    assert server.run_served(["diagnose", "x.nc", "--out", "o"]) is None
+
+
+def test_an_idle_server_ends_and_removes_its_socket(short_tmp):
+    tmp_path = short_tmp
+    env = _env(tmp_path, CALIB_SERVER_IDLE="0.5")
+    code = "from calib.cli import server\nserver.warm = lambda: None\nraise SystemExit(server.serve(server.key()))\n"
+    p = subprocess.Popen([sys.executable, "-c", code], env=env)
+    t0 = time.monotonic()
+    while not _sock(tmp_path) and p.poll() is None and time.monotonic() - t0 < 60:
+        time.sleep(0.05)
+    assert _sock(tmp_path), "the server never listened"
+    assert p.wait(timeout=30) == 0
+    assert _sock(tmp_path) == []
+
+
+def test_only_diagnose_is_served():
+    assert server.served(["diagnose", "r.nc", "--out", "o"]) and server.served(["-q", "diagnose", "r.nc"])
+    assert not server.served(["validate", "r.nc"]) and not server.served(["diagnose", "--help"])
+    assert not server.served([])
