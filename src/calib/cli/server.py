@@ -117,19 +117,25 @@ def _paths(k: str, d: Path):
     return d / f"srv-{k}.sock", d / f"srv-{k}.lock"
 
 
+def _current():
+    """``(key, socket path, lock path)`` of this process's code, or None when no server may be used."""
+    d = folder() if enabled() else None
+    if d is None:
+        return None
+    k = key()
+    return (k, *_paths(k, d))
+
+
 # ------------------------------------------------------------------------------------------------ the command side
 
 
 def run_served(argv) -> int | None:
     """Run ``calib ARGV`` in a warm server and return its exit code; None when no server took it (then the caller
     runs the command itself: nothing of it has run)."""
-    if not (enabled() and served(argv)):
+    where = _current() if served(argv) else None
+    if where is None:
         return None
-    d = folder()
-    if d is None:
-        return None
-    k = key()
-    path, _ = _paths(k, d)
+    k, path, _ = where
     try:
         for fd in (0, 1, 2):
             os.fstat(fd)
@@ -208,15 +214,10 @@ def idle_seconds() -> float:
 def start_background() -> bool:
     """Start a server for the current key unless one runs (or starts) already; never waits, never fails. True
     when one was started."""
-    if not enabled():
+    where = _current()
+    if where is None or _locked(where[2]):
         return False
-    d = folder()
-    if d is None:
-        return False
-    k = key()
-    path, lock = _paths(k, d)
-    if _locked(lock):
-        return False
+    k = where[0]
     import subprocess
 
     try:
