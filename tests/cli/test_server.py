@@ -97,10 +97,18 @@ def test_relative_paths_are_the_command_s_folder(warm, tmp_path):
     """The run works in the command's folder with the command's environment: a relative --out lands there."""
     got = _served(warm, "diagnose", str(warm["rec"]), "--out", "rel", cwd=tmp_path)
     assert got.stderr.splitlines()[-1] == "SERVED", got.stderr
-    got = {p.name: p.read_bytes() for p in sorted((tmp_path / "rel").iterdir())}
+    _assert_outputs_of_the_cold_run(warm, tmp_path / "rel", "rel")
+
+
+def _assert_outputs_of_the_cold_run(warm, out, named):
+    """The files of the cold run in ``out``, byte for byte; report.json names its figures by the --out given."""
+    got = {p.name: p.read_bytes() for p in sorted(Path(out).iterdir())}
     assert got.keys() == warm["files"].keys()
-    assert all(got[n] == warm["files"][n] for n in got if n != "report.json")   # report.json names its figures
-    assert json.loads(got["report.json"])["figures"] == ["rel/residuals_before_after.png", "rel/allan_deviation.png"]
+    assert all(got[n] == warm["files"][n] for n in got if n != "report.json")
+    figures = json.loads(got["report.json"])["figures"]
+    assert figures == [f"{named}/residuals_before_after.png", f"{named}/allan_deviation.png"]
+    cold = warm["files"]["report.json"].replace(str(warm["dir"] / "out").encode(), named.encode())
+    assert got["report.json"] == cold
 
 
 def test_a_refusal_is_the_same_when_served(warm, tmp_path):
@@ -122,13 +130,29 @@ def test_a_refusal_is_the_same_when_served(warm, tmp_path):
 def test_a_signal_of_the_command_ends_its_run(warm, tmp_path, signum, code, name):
     out = tmp_path / "o"
     p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
-                         env=warm["env"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         env=warm["env"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # as from a terminal
     _under_way(warm["runtime"])
     p.send_signal(signum)
     _, err = p.communicate(timeout=120)
     assert p.returncode == code, err
     assert f"calib diagnose: interrupted by {name}" in err
     assert not out.exists() or list(out.iterdir()) == []
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to find the run's process")
+def test_a_signal_the_command_ignores_is_ignored_by_its_run(warm, tmp_path):
+    """A command started with SIGINT ignored (in the background of a shell, under nohup, by a CI runner) goes on
+    through a Ctrl-C as a cold one does: its run inherits the disposition."""
+    out = tmp_path / "o"
+    p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
+                         env=warm["env"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    _under_way(warm["runtime"])
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == warm["cold"].returncode, err
+    _assert_outputs_of_the_cold_run(warm, out, str(out))
 
 
 def _under_way(runtime):

@@ -11,6 +11,7 @@
     calib fieldcal RECORDING.nc [--settings S.yaml] [--out result.nc]
     calib navigate RECORDING.nc --out errors.nc [--calibration DIR/default_calibration.nc]
     calib diagnose RECORDING.nc --out DIR [--settings FILE.yaml|json] [--noise-record LONG_STATIC.nc] [--limits]
+    calib server status|stop      (the warm server of calib diagnose: calib.cli.server; CALIB_SERVER=off: none)
 
 Every recording is checked before any fit (format, time coordinate, masked samples, and the physical
 plausibility of its magnitudes for the declared units: calib.signal.plausibility; --force turns the
