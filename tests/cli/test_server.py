@@ -241,7 +241,7 @@ def test_a_folder_others_may_enter_is_not_used(short_tmp, monkeypatch):
     assert server.run_served(["diagnose", "x.nc", "--out", "o"]) is None
 
 
-def test_an_idle_server_ends_and_removes_its_socket(short_tmp):
+def test_an_idle_server_ends_and_removes_its_files(short_tmp):
     tmp_path = short_tmp
     env = _env(tmp_path, CALIB_SERVER_IDLE="0.5")
     code = "from calib.cli import server\nserver.warm = lambda: None\nraise SystemExit(server.serve(server.key()))\n"
@@ -252,6 +252,7 @@ def test_an_idle_server_ends_and_removes_its_socket(short_tmp):
     assert _sock(tmp_path), "the server never listened"
     assert p.wait(timeout=30) == 0
     assert _sock(tmp_path) == []
+    assert list((tmp_path / f"calib-{os.getuid()}").glob("srv-*.lock")) == []   # nothing left behind
 
 
 def test_only_diagnose_is_served():

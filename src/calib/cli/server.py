@@ -60,6 +60,7 @@ KEY_ENV = ("CALIB_", "NUMBA_", "MPL", "PYTHON", "OMP_", "OPENBLAS_", "MKL_", "NU
 EXIT_LOST = 70   # calib.core.errors.EXIT_INTERNAL (not imported: this module is on the command's start-up path)
 _LEN = struct.Struct("<I")
 _SIGNALS = {"SIGINT": signal.SIGINT, "SIGTERM": signal.SIGTERM}
+_HELD: list = []   # in the server: its lock file's descriptor
 
 
 def enabled() -> bool:
@@ -297,6 +298,7 @@ def serve(k: str) -> int:
         return 0
     os.ftruncate(lock_fd, 0)
     os.write(lock_fd, f"{os.getpid()}\n".encode())
+    _HELD[:] = [lock_fd]   # a run closes it: only the server holds the lock
 
     def stop(signum, frame):
         raise SystemExit(0)
@@ -305,15 +307,15 @@ def serve(k: str) -> int:
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
     idle = idle_seconds()
-    warm()
-    import gc
-
-    gc.collect()
-    gc.freeze()   # the warmed objects are never collected: no run traverses (and copies) them at every collection
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     tmp = d / f".{os.getpid()}.sock"
     ino = None
     try:
+        warm()
+        import gc
+
+        gc.collect()
+        gc.freeze()   # the warmed objects are never collected: no run traverses (and copies) them at each collection
         sock.bind(str(tmp))
         sock.listen(16)
         os.replace(tmp, path)   # clients see the socket only once the state is warm
@@ -337,6 +339,10 @@ def serve(k: str) -> int:
         with contextlib.suppress(OSError):
             tmp.unlink()
         sock.close()
+        with contextlib.suppress(OSError):   # the lock file goes too, unless a newer server made its own
+            if lock.stat().st_ino == os.fstat(lock_fd).st_ino:
+                lock.unlink()
+        os.close(lock_fd)
     return 0
 
 
@@ -362,6 +368,8 @@ def _take(conn, sock, k: str) -> bool:
         conn.settimeout(None)
         if os.fork() == 0:
             sock.close()
+            for fd in _HELD:
+                os.close(fd)
             _run(conn, fds, req)   # never returns
         return True
     except (OSError, ValueError):
