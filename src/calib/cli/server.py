@@ -16,9 +16,11 @@ Trust:
 
 * **Same code**: the key hashes the interpreter, ``sys.path`` (but for its first entry, the launcher's folder) and
   the modification stamps of its folders (a package installed or removed), every file of the calib package (size
-  and modification time), and the environment variables read at import time (``CALIB_*``, ``NUMBA_*``, ``MPL*``,
-  ``PYTHON*``, thread counts, locale, ``HOME``, ``XDG_*``). A command whose key differs never reaches a server
-  started from other code; a server whose files changed under it stops at the next request or within 30 s.
+  and modification time), the interpreter's flags and warning options, and the environment variables read at
+  import time (``CALIB_*``, ``NUMBA_*``, ``MPL*``, ``PYTHON*``, ``LD_*``, thread counts, locale, ``HOME``,
+  ``XDG_*``, ``TMPDIR``). A command whose key differs never reaches a server started from other code; a server
+  whose files changed under it stops at the next request or within 30 s. What the run looks up at run time (the
+  temporary folder, every setting calib reads) comes from the command's own environment.
 * **Same result**: the served run is the cold run's code on the cold run's inputs; tests/cli/test_server.py compares
   the files, the lines and the exit codes of a served run with those of a cold run byte for byte.
 * **Same refusals and signals**: a Ctrl-C or SIGTERM of the command is passed to the run (which ends as a cold run
@@ -56,7 +58,7 @@ IDLE_DEFAULT = 600.0
 SERVED = ("diagnose",)
 #: environment read while the libraries load (numba's and matplotlib's configuration, thread pools, locale)
 KEY_ENV = ("CALIB_", "NUMBA_", "MPL", "PYTHON", "OMP_", "OPENBLAS_", "MKL_", "NUMEXPR_", "LC_", "LANG", "TZ",
-           "HOME", "XDG_", "VIRTUAL_ENV")
+           "HOME", "XDG_", "VIRTUAL_ENV", "LD_", "TMP", "TEMP")
 EXIT_LOST = 70   # calib.core.errors.EXIT_INTERNAL (not imported: this module is on the command's start-up path)
 _LEN = struct.Struct("<I")
 _SIGNALS = {"SIGINT": signal.SIGINT, "SIGTERM": signal.SIGTERM}
@@ -96,7 +98,8 @@ def key() -> str:
 
     h = hashlib.sha256()
     search = sys.path[1:]   # [0] is the script's folder or the working directory: not the same for every launcher
-    h.update(repr((sys.executable, sys.version, search, os.getuid())).encode())
+    h.update(repr((sys.executable, sys.version, search, os.getuid(), sys.flags, sys.warnoptions,
+                   sys._xoptions)).encode())
     for p in search:
         with contextlib.suppress(OSError):
             h.update(f"{p}:{os.stat(p).st_mtime_ns}\n".encode())
@@ -399,6 +402,7 @@ def _run(conn, fds, req) -> None:
         os.chdir(req["cwd"])
         os.environ.clear()
         os.environ.update(req["env"])
+        tempfile.tempdir = None   # looked up again from the command's environment
         os.umask(req["umask"])
         sys.stdout.reconfigure(line_buffering=os.isatty(1))
         sys.argv = ["calib", *req["argv"]]
