@@ -274,8 +274,10 @@ def _diagnose(a, h=None):
         settings = load_mapping(a.settings)
     _output_dir(a.out)
     checks = {}
+    warm = "calib.diagnosis" in sys.modules   # a run of the warm server (calib.cli.server): nothing left to import
     if h is not None:   # the input checks start now, beside the import of the diagnosis
-        checks["recording"] = h.submit([("calib.cli:_input_check", (a.recording, a.force, "recording"))])
+        if not warm:   # (warm, the command checks the recording itself meanwhile: it would only wait)
+            checks["recording"] = h.submit([("calib.cli:_input_check", (a.recording, a.force, "recording"))])
         if a.noise_record:
             checks["noise record"] = h.submit([("calib.cli:_input_check", (a.noise_record, a.force, "noise record"))])
         if (settings or {}).get("figures", True):

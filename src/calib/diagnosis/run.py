@@ -59,11 +59,13 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
 def _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from=None):
     prob = None
     try:
+        # with a helper process, the noise figure is drawn while the rest runs: handed over once the noise is fitted
         if "nominal_attitude" in ds or (library_from is not None and library_from.kind == "vector"):
-            prob = setup_problem(ds, st, library_from=library_from, geometry_from=geometry_from)
+            prob = setup_problem(ds, st, library_from=library_from, geometry_from=geometry_from,
+                                 on_problem=lambda p: start_figures(p, out_dir, st))
         else:
             prob = setup_norm_problem(ds, st)
-        start_figures(prob, out_dir, st)    # with a helper process: the noise figure drawn while the analysis runs
+            start_figures(prob, out_dir, st)
         rank = np.linalg.matrix_rank(prob.whiten(prob.X0))
         if rank < prob.X0.shape[1]:
             raise DiagnosisInputError(f"the base calibration failed: its design has rank {rank} of "
