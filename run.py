@@ -111,16 +111,21 @@ def main(argv):
         os.environ.setdefault("PIP_COMPILE", "0")
         os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
         env = setup()
-        env_strict = dict(env, CALIB_FIGURE_CHECK="strict")  # a figure with an empty panel, etc. fails the rule
-        # the small workflow on its own profile (.test/config.yaml, a thread a rule, the proof first: in a fresh clone
-        # it compiles numba's diagnosis kernels, which the diagnosis rules after it then load from the cache)
-        chain = Beside("the .test workflow", ROOT / ".test" / "results" / "logs" / "test_chain.log",
-                       BIN / "snakemake", "--profile", "workflow/profiles/test", env=env_strict)
+        # beside the tests: the small workflow, then its lint and the CF check of its products (_chain below)
+        chain = Beside("the .test workflow, its lint and the CF check of its products",
+                       ROOT / ".test" / "results" / "logs" / "test_chain.log", sys.executable, __file__, "_chain",
+                       env=env)
         with chain:
             sh(PY, "-m", "pytest", "-q", *pytest_workers(rest), *rest, env=env)
             sh(BIN / "lint-imports", env=env)  # the layer contract of pyproject.toml [tool.importlinter]
-            sh(BIN / "snakemake", "--lint", "--configfile", ".test/config.yaml", env=env)
             chain.finish()
+    elif verb == "_chain":   # what `test` runs beside pytest (its output goes to the chain's log)
+        env = setup()
+        env_strict = dict(env, CALIB_FIGURE_CHECK="strict")  # a figure with an empty panel, etc. fails the rule
+        # the small workflow on its own profile (.test/config.yaml, a thread a rule, the proof first: in a fresh clone
+        # it compiles numba's diagnosis kernels, which the diagnosis rules after it then load from the cache)
+        sh(BIN / "snakemake", "--profile", "workflow/profiles/test", env=env_strict)
+        sh(BIN / "snakemake", "--lint", "--configfile", ".test/config.yaml", env=env)
         # CF-1.11 oracle on every kind of netCDF the workflow writes (one optimizer run file stands for all)
         res = ROOT / ".test" / "results"
         ncs = sorted(p for p in res.rglob("*.nc") if p.parent.name != "runs") + [res / "calibration" / "runs" /
