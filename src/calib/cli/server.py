@@ -156,6 +156,7 @@ def run_served(argv) -> int | None:
 
 def _hand_over(s, path, k, argv) -> int | None:
     try:
+        s.settimeout(10.0)   # a server that does not take the command at once (stopped, stuck): run it cold
         s.connect(str(path))
         ignored = [n for n, sig in _SIGNALS.items() if signal.getsignal(sig) is signal.SIG_IGN]
         umask = os.umask(0)
@@ -165,7 +166,9 @@ def _hand_over(s, path, k, argv) -> int | None:
         socket.send_fds(s, [_LEN.pack(len(req))], [0, 1, 2])
         s.sendall(req)
         if s.recv(1) != b"A":   # a server of other code, or one that ended: nothing ran
+            s.close()
             return None
+        s.settimeout(None)
     except OSError:
         s.close()
         return None
