@@ -22,6 +22,7 @@ LONGEST_FIRST = [   # measured 2026-11-27 (pytest --junitxml, summed per file)
     "tests/workflow/test_cluster.py",
     "tests/fieldcal/test_units_check.py",
     "tests/studies/test_sweeps.py",
+    "tests/cli/test_server.py",          # ~17 s (2026-11-27, second session: a cold run, the server's warm-up)
     "tests/cli/test_exit_codes.py",
     "tests/diagnosis/test_real_proof.py",
     "tests/fieldcal/test_default_detection.py",
