@@ -33,7 +33,8 @@ pytestmark = pytest.mark.skipif(not (hasattr(os, "fork") and hasattr(socket, "se
 
 
 def _env(runtime, **extra):
-    env = {**os.environ, server.ENV: "on", "XDG_RUNTIME_DIR": str(runtime), **extra}
+    # a server the tests fail to stop ends itself two minutes after its last command
+    env = {**os.environ, server.ENV: "on", "XDG_RUNTIME_DIR": str(runtime), server.IDLE_ENV: "120", **extra}
     env.pop("PYTEST_CURRENT_TEST", None)
     return env
 
