@@ -52,6 +52,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from calib.core.errors import EXIT_INTERNAL, EXIT_SIGINT
+
 ENV = "CALIB_SERVER"
 IDLE_ENV = "CALIB_SERVER_IDLE"
 IDLE_DEFAULT = 600.0
@@ -59,7 +61,6 @@ SERVED = ("diagnose",)
 #: environment read while the libraries load (numba's and matplotlib's configuration, thread pools, locale)
 KEY_ENV = ("CALIB_", "NUMBA_", "MPL", "PYTHON", "OMP_", "OPENBLAS_", "MKL_", "NUMEXPR_", "LC_", "LANG", "TZ",
            "HOME", "XDG_", "VIRTUAL_ENV", "LD_", "TMP", "TEMP")
-EXIT_LOST = 70   # calib.core.errors.EXIT_INTERNAL (not imported: this module is on the command's start-up path)
 _LEN = struct.Struct("<I")
 _SIGNALS = {"SIGINT": signal.SIGINT, "SIGTERM": signal.SIGTERM}
 _HELD: list = []   # in the server: its lock file's descriptor
@@ -151,7 +152,7 @@ def run_served(argv) -> int | None:
     except KeyboardInterrupt:   # Ctrl-C before the run took over (a run already started sees the socket close)
         s.close()
         print("calib: interrupted by SIGINT; nothing written", file=sys.stderr)
-        return 128 + int(signal.SIGINT)
+        return EXIT_SIGINT
 
 
 def _hand_over(s, path, k, argv) -> int | None:
@@ -194,20 +195,20 @@ def _wait(s) -> int:
         except OSError:
             b = b""
         if not b:
-            for sig in _SIGNALS.values():
-                signal.signal(sig, signal.SIG_IGN)
-            if sent:   # the run was killed by the signal passed on (it came before its handlers): so is the command
-                signal.signal(sent[0], signal.SIG_DFL)
-                os.kill(os.getpid(), sent[0])
-            print("calib diagnose: the server process running the command ended without an exit code (killed?); "
-                  "outputs it had not finished are not written -- fix: run it again, or with CALIB_SERVER=off",
-                  file=sys.stderr)
-            return EXIT_LOST
+            break
         buf += b
+    s.close()
     for sig in _SIGNALS.values():   # the outcome is decided (as a cold command after its outcome)
         signal.signal(sig, signal.SIG_IGN)
-    s.close()
-    return int(buf[1:].strip())
+    if buf.endswith(b"\n"):
+        return int(buf[1:].strip())
+    if sent:   # the run was killed by the signal passed on (it came before its handlers): so is the command
+        signal.signal(sent[0], signal.SIG_DFL)
+        os.kill(os.getpid(), sent[0])
+    print("calib diagnose: the server process running the command ended without an exit code (killed?); "
+          "outputs it had not finished are not written -- fix: run it again, or with CALIB_SERVER=off",
+          file=sys.stderr)
+    return EXIT_INTERNAL
 
 
 def idle_seconds() -> float:
@@ -390,7 +391,7 @@ def _take(conn, sock, k: str) -> bool:
 def _run(conn, fds, req) -> None:
     """In the forked copy: become the command (its streams, folder, environment, umask, signal dispositions) and
     run :func:`calib.cli.main` exactly as the ``calib`` command does; report the exit code and end."""
-    code = EXIT_LOST
+    code = EXIT_INTERNAL
     try:
         signal.signal(signal.SIGCHLD, signal.SIG_DFL)
         signal.signal(signal.SIGHUP, signal.SIG_DFL)
@@ -420,9 +421,9 @@ def _run(conn, fds, req) -> None:
             print(exc.code, file=sys.stderr)
     except KeyboardInterrupt:   # a Ctrl-C before the command's own handlers were in place
         print("calib: interrupted by SIGINT; nothing written", file=sys.stderr)
-        code = 128 + int(signal.SIGINT)
+        code = EXIT_SIGINT
     except BaseException:  # noqa: BLE001 - the command reports a run without an exit code
-        code = EXIT_LOST
+        code = EXIT_INTERNAL
     finally:
         with contextlib.suppress(Exception):
             sys.stdout.flush()
