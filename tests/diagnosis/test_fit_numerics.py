@@ -178,3 +178,50 @@ def test_clock_offset_profile_is_the_least_squares_of_the_patched_design(problem
         th, _, _ = lstsq(Aw, yw, want_cov=False)
         r = yw - Aw @ th
         assert math.isclose(f(d), float(r @ r), rel_tol=1e-8)
+
+
+@pytest.mark.parametrize("path", ["normal equations", "stacked QR"])
+def test_standard_errors_over_the_slow_noise_grid_are_the_dense_gls(problem, path, monkeypatch):
+    """At every grid point of the slow noise that the marginal standard errors weigh (Tc, rho, level of one
+    sensor; the other sensor at the problem's noise), the estimates and variances of the fast grid solver (normal
+    equations of the eigen-whitened sensor rows where well conditioned, QR of the stacked design elsewhere: both
+    paths, the second forced) equal the generalised least squares computed densely: every axis block whitened by
+    the Cholesky factor of its own covariance lam (C_fast + rho A_slow(Tc)) built from the parts, the whole design
+    solved by pivoted least squares."""
+    from calib.diagnosis import analysis
+
+    if path == "stacked QR":
+        monkeypatch.setattr(analysis, "NE_COND_MAX", 0.0)
+    from calib.diagnosis.fitting import fit
+    from calib.diagnosis.geometry import SENSORS
+    from calib.diagnosis.noise import covariance_blocks, slow_structure
+
+    _, _, prob = problem
+    for terms, key in ((["accel_lever_arm/accel"], "accel_lever_arm/accel"),
+                       (["accel_lever_arm/accel", "temperature_sensitivity/gyro"], "temperature_sensitivity/gyro")):
+        f = fit(prob, terms)
+        s = prob.cand(key).sensor
+        si = SENSORS.index(s)
+        grid = {}
+        profile_noise(prob.geom, prob.noise, prob.y, f.X, prob.parts, prob.cache, blocks=[(si, a) for a in range(3)],
+                      method="reml", update=False, grid_out=grid)
+        pts = [(tc, rho, lam) for _, tc, rho, lam in grid[s]]
+        picks = [pts[i] for i in np.linspace(0, len(pts) - 1, 9).astype(int)]
+        th, var = analysis._gls_over_slow_grid(prob, f.X, s, picks, f.slices[key])
+        _, Lp = covariance_blocks(prob.geom, prob.noise, prob.parts, prob.cache)
+        AN, AQ, _ = prob.parts[s]
+        for (tc, rho, lam), t_fast, v_fast in zip(picks, th, var):
+            Xw, yw = [], []
+            for (sj, a), idx in prob.geom.obs["blocks"].items():
+                if sj == si:
+                    C = lam * (prob.noise.N_shape[s][a] ** 2 * AN + prob.noise.Q_shape[s][a] ** 2 * AQ
+                               + rho * slow_structure(prob.parts, prob.geom, s, tc, prob.cache))
+                    L = np.linalg.cholesky(C)
+                else:
+                    L = Lp[(sj, a)]
+                Xw.append(np.linalg.solve(L, f.X[idx]))
+                yw.append(np.linalg.solve(L, prob.y[idx]))
+            theta, cov, _ = lstsq(np.vstack(Xw), np.concatenate(yw))
+            sl = f.slices[key]
+            np.testing.assert_allclose(t_fast, theta[sl], rtol=1e-7, atol=1e-9 * np.sqrt(np.diag(cov)[sl]).max())
+            np.testing.assert_allclose(v_fast, np.diag(cov)[sl], rtol=1e-7)
