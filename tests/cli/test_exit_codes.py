@@ -151,9 +151,12 @@ def _main_as_from_a_terminal(signum, argv) -> int:
 
 
 @pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
-def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, capsys, signum, code, name):
+def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, capsys, signum, code, name, tmp_path):
     """A signal that lands inside an extension module while it loads comes back as that module's ImportError
     ("initialization failed"): still the interruption's exit code and line, not an internal error."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))   # the internal error's log below: not in /tmp
     def interrupted_import(a):
         try:
             os.kill(os.getpid(), signum)
@@ -168,6 +171,8 @@ def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, cap
     monkeypatch.setattr(cli, "cmd_validate", lambda a: (_ for _ in ()).throw(ImportError("a bug")))
     assert cli.main(["validate", "x.nc"]) == 70   # no signal: an ImportError is a bug
     capsys.readouterr()
+    logs = list(tmp_path.glob("calib-error-*.log"))
+    assert len(logs) == 1 and "ImportError: a bug" in logs[0].read_text()
 
 
 @pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
