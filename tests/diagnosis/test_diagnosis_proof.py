@@ -82,6 +82,25 @@ def test_power_scan_session_reuse_equals_a_fresh_build(tmp_path):
     assert moved.sim is not first.sim and moved.sim.site.latitude_deg == 50.0
 
 
+def test_seeds_on_the_end_to_end_geometry_score_as_from_scratch(tmp_path):
+    """The proof's first seed of a session reuses the geometry of the session's end-to-end run (the simulator's
+    file read back from disk): every seed's score row equals the row of a set-up from scratch."""
+    from calib.diagnosis import DEFAULT_SETTINGS, diagnose_recording
+
+    eff = {"accel_lever_arm": {"lever_arms_m": [[0.02, 0.0, 0.0], [0.0, 0.03, 0.0], [0.0, 0.0, -0.025]]}}
+    fs = FastSession({**SHORT, "effects": eff, "conceal": True}, tmp_path / "a", physical=True)
+    _, prob = diagnose_recording(fs.path, None, {"figures": False}, return_problem=True)
+    assert prob is not None and prob.kind == "vector"
+    st = {**DEFAULT_SETTINGS, "figures": False, "absent_bounds": False, "report_detail": False}
+    rows = {}
+    for how, g in (("fresh", None), ("reused", prob)):
+        rows[how], p0 = diagnosis_proof._seed_rows(fs, "lever", "single", [21, 22], st, geometry_from=g)
+        assert (p0.geom is prob.geom) == (g is not None)
+        for r in rows[how]:
+            r.pop("elapsed_s")
+    assert rows["fresh"][0]["correct"] and json.dumps(rows["reused"], sort_keys=True) == json.dumps(rows["fresh"], sort_keys=True)
+
+
 def test_geometry_reuse_gives_the_reports_of_a_fresh_set_up(tmp_path):
     """A recording of the same template diagnosed with the geometry of another one (geometry_from: the power
     scan) gives the report of a set-up from scratch, number for number."""

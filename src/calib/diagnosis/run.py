@@ -87,7 +87,7 @@ def _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from=None):
 
 
 def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_source: str = "",
-                       name: str | None = None) -> dict:
+                       name: str | None = None, return_problem: bool = False):
     """``calib diagnose RECORDING.nc --out DIR``: writes DIR/report.json, DIR/report.md and figures.
 
     Works on any ``calib-recording-1`` file with a segment table (synthetic or imported; an imported
@@ -96,7 +96,8 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
     (unreadable file, too short, too few segments, failed calibration, no noise estimate) gives a report
     with verdict ``inconclusive`` and the reason -- never a finding. ``out_dir`` None: nothing is written.
     ``name``: what the report calls the recording (default: ``path``; e.g. for a temporary file, whose path would
-    make the report differ from run to run).
+    make the report differ from run to run). ``return_problem``: return ``(report, Problem or None)``, the set-up
+    whose geometry other recordings of the same template may reuse (``diagnose_dataset(geometry_from=...)``).
     """
     st = settings_of(settings)
     ds, refusal = load_for_diagnosis(path, st, intervals, intervals_source)
@@ -104,9 +105,9 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
         if name is not None:
             refusal["recording"] = str(name)
         _write_refusal(refusal, out_dir)
-        return refusal
-    rep, _ = diagnose_dataset(ds, out_dir, st, path=path if name is None else name)
-    return rep
+        return (refusal, None) if return_problem else refusal
+    rep, prob = diagnose_dataset(ds, out_dir, st, path=path if name is None else name)
+    return (rep, prob) if return_problem else rep
 
 
 def load_for_diagnosis(path, settings=None, intervals=None, intervals_source: str = ""):
