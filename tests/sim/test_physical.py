@@ -8,6 +8,7 @@ Agreement of the two (to what their different discretisations allow) is evidence
 the effect the truth sidecar names, made by a path the detector does not use."""
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -89,3 +90,28 @@ def test_unknown_effect_is_refused(base):
     sim, clean, temp = base
     with pytest.raises(ValueError, match="no physical model"):
         physical.inject(sim, clean, {"gravity_error": {"delta_g_m_s2": 1e-3}}, temp)
+
+
+def test_injections_into_one_signal_share_its_inputs_and_only_that_signal(base):
+    """The inputs recovered from a noise-free signal are kept for the next injection into the same signal (the
+    Fisher bound's many): every injection equals one computed with nothing kept, bit for bit, and a signal changed
+    in place, or another unit's, is never served the kept inputs."""
+    sim, clean, temp = base
+    eff = effects.resolve({"accel_quadratic_nonlinearity": {}, "gyro_g_sensitivity": {}})
+    physical._BASE_INPUTS.clear()
+    first = physical.inject(sim, clean, eff, temp)
+    again = physical.inject(sim, clean, eff, temp)                   # served the kept inputs
+    assert np.array_equal(first, again)
+    changed = clean.copy()
+    physical.inject(sim, changed, eff, temp)
+    changed[100:200, 0] += 50.0                                     # the same array, other content
+    got = physical.inject(sim, changed, eff, temp)
+    physical._BASE_INPUTS.clear()
+    assert np.array_equal(got, physical.inject(sim, changed, eff, temp))
+    assert not np.array_equal(got, first)
+    other = copy.deepcopy(sim)                                      # another unit: its accel scale factors differ
+    other.accel.K = other.accel.K * 1.001
+    physical.inject(sim, clean, eff, temp)
+    got = physical.inject(other, clean, eff, temp)
+    physical._BASE_INPUTS.clear()
+    assert np.array_equal(got, physical.inject(other, clean, eff, temp))
