@@ -435,3 +435,27 @@ def test_gyro_units_checked_against_the_table_angle(tmp_path):
     res = plausibility.check_recording(path, force=True)
     assert res.table_angle_ratio == pytest.approx(math.pi / 180.0, rel=0.01)
     assert any("table turned" in w and "radians declared as degrees" in w for w in res.warnings)
+
+
+def test_a_file_name_that_is_not_utf8_is_refused_by_name_with_the_fix(tmp_path, capsys, count_session):
+    """The netCDF library opens and creates UTF-8 paths only, and Python keeps a name that is not valid UTF-8 as
+    lone surrogates. Reading such a file, diagnosing it and writing to such a name end in exit 2 with a message
+    naming the file (its bad byte escaped, as the terminal shows it) and the fix -- not the library's encoding
+    error, not 'truncated or not netCDF' -- and the diagnosis's refusal report is written whole (report.json and
+    report.md), nothing else left behind."""
+    rec = tmp_path / os.fsdecode(b"rec\xff.nc")
+    shutil.copy(count_session, rec)
+    code, err = run(capsys, "validate", rec)
+    assert code == 2 and "rec\\udcff.nc" in err and "is not valid UTF-8" in err and "fix: rename it" in err
+    assert "truncated" not in err and "codec" not in err
+    out = tmp_path / "diag"
+    code, err = run(capsys, "diagnose", rec, "--out", out)
+    assert code == 2 and "is not valid UTF-8" in err and "codec" not in err
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["verdict"] == "inconclusive" and "is not valid UTF-8" in rep["verdict_reason"]
+    assert "rec\\udcff.nc" in (out / "report.md").read_text(encoding="utf-8")
+    before = sorted(os.listdir(tmp_path))
+    code, err = run(capsys, "simulate", "calibration", tmp_path / os.fsdecode(b"sim\xff.nc"), "--config",
+                    SMALL_CONFIG)
+    assert code == 2 and "sim\\udcff.nc" in err and "is not valid UTF-8" in err and "fix: choose a name" in err
+    assert sorted(os.listdir(tmp_path)) == before and leftovers(tmp_path) == []

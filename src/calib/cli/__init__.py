@@ -50,8 +50,13 @@ EPILOG = "exit codes:\n" + "\n".join(f"  {code:3d}  {text}" for code, text in EX
 
 
 def _output_file(path, what="output") -> Path:
-    """The parent folder of an output file must exist and be writable; the output must not be a folder."""
+    """The parent folder of an output file must exist and be writable; the output must not be a folder; a netCDF
+    output needs a name in valid UTF-8 (:func:`calib.io.atomic.utf8_name`), said before the work is done."""
     p = Path(path)
+    if p.suffix.lower() == ".nc":
+        from calib.io.atomic import utf8_name
+
+        utf8_name(p, what)
     if p.is_dir():
         raise InputError(f"is a folder; the {what} needs a file name", file=p)
     parent = p.parent if str(p.parent) else Path(".")
@@ -446,7 +451,10 @@ def _signals(exiting: bool = False):
 
 
 def _say(text):
-    print(" ".join(str(text).split()) if "\n" in str(text) else text, file=sys.stderr)
+    """One line on standard error; a file name that was not valid UTF-8 (lone surrogates) shows escaped, as
+    Python's own stderr would show it, whatever the stream's error handler (a served run, a capture)."""
+    text = str(text).encode("utf-8", "backslashreplace").decode("utf-8")
+    print(" ".join(text.split()) if "\n" in text else text, file=sys.stderr)
 
 
 def _os_message(exc: OSError) -> str:

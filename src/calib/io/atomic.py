@@ -21,6 +21,23 @@ from pathlib import Path
 import numpy as np
 
 
+def utf8_name(path, what: str = "output") -> Path:
+    """``path`` as a :class:`Path` if its name is valid UTF-8. The netCDF library opens and creates UTF-8 paths
+    only, and Python keeps the bytes of a name that is not valid UTF-8 as lone surrogates: for such a name an
+    :class:`calib.core.errors.InputError` naming the file and the fix, before any work is done, instead of the
+    library's encoding error after it."""
+    path = Path(path)
+    try:
+        str(path).encode("utf-8")
+    except UnicodeEncodeError:
+        from calib.core.errors import InputError   # here: that module loads yaml, this one is on every write path
+
+        raise InputError(f"the name of the {what} (or of a folder on its path) is not valid UTF-8, and the netCDF "
+                         "library reads and writes UTF-8 paths only", file=path,
+                         fix="choose a name in valid UTF-8 (e.g. letters, digits, '-' and '_' only)") from None
+    return path
+
+
 def umask() -> int:
     """The process umask (read without changing it for longer than one call)."""
     mask = os.umask(0)
@@ -54,10 +71,13 @@ def atomic_path(path, suffix: str = ".part", make_parents: bool = True):
 
 
 def write_text(path, text: str, make_parents: bool = True) -> Path:
-    """Write ``text`` to ``path`` atomically."""
+    """Write ``text`` to ``path`` atomically, in UTF-8 whatever the locale (the same bytes everywhere). A
+    character UTF-8 cannot hold -- a lone surrogate, which is how Python keeps a file name that was not valid
+    UTF-8 -- is written as its escape (``\\udcff``), as the terminal shows it, instead of failing half-way
+    through a set of products."""
     path = Path(path)
     with atomic_path(path, make_parents=make_parents) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8", errors="backslashreplace")
     return path
 
 

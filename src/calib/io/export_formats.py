@@ -366,7 +366,7 @@ def _write_all(texts: dict) -> list:
     with contextlib.ExitStack() as stack:
         for path, text in texts.items():
             tmp = stack.enter_context(atomic_path(path))
-            tmp.write_text(text)
+            tmp.write_text(text, encoding="utf-8", errors="backslashreplace")   # as calib.io.atomic.write_text
     return list(texts)
 
 

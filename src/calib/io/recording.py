@@ -43,7 +43,8 @@ import xarray as xr
 from calib.core import earth
 from calib.core.errors import InputError
 from calib.io.atomic import atomic_path
-from calib.io.netcdf import CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, internal_units, write_netcdf
+from calib.io.netcdf import (CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, creatable_name, internal_units,
+                             write_netcdf)
 
 CONVENTIONS = "calib-recording-1"
 AXES = ("x", "y", "z")
@@ -153,9 +154,15 @@ def _number(path, nc, name, default=None):
 
 
 def _unreadable(path, exc) -> RecordingError:
-    """What a reader raises for a file the netCDF library cannot read (truncated, corrupted, not netCDF)."""
+    """What a reader raises for a file the netCDF library cannot read (truncated, corrupted, not netCDF; or a
+    name it cannot open: the library takes UTF-8 paths only, and Python keeps the bytes of a name that is not
+    valid UTF-8 as lone surrogates, which shows in the message as their escapes, e.g. ``\\udcff``)."""
     if isinstance(exc, PermissionError):
         return RecordingError(path, "-", "permission denied", "make the file readable")
+    if isinstance(exc, UnicodeError):
+        return RecordingError(path, "-", "the file name (or a folder on its path) is not valid UTF-8, and the netCDF "
+                              "library opens UTF-8 paths only", "rename it to valid UTF-8 (e.g. letters, digits, "
+                              "'-' and '_' only)")
     return RecordingError(path, "-", f"not a readable netCDF file ({type(exc).__name__}: {exc}); truncated or not "
                           "netCDF", UNREADABLE_FIX)
 
@@ -545,7 +552,7 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
 def write(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
     """Write an in-memory recording atomically: it is validated under its temporary name and appears under
     ``path`` only when valid, so a refused recording never replaces an earlier file."""
-    path = Path(path)
+    path = creatable_name(path)
     with atomic_path(path) as tmp:
         write_netcdf(ds, tmp, prov)
         try:

@@ -29,10 +29,8 @@ DEFAULT_SLICE = 1 << 20
 
 
 def _unreadable(path, exc) -> RecordingError:
-    if isinstance(exc, RecordingError):
-        return exc
-    return RecordingError(path, "-", f"not a readable netCDF file ({type(exc).__name__}: {exc}); truncated or not "
-                          "netCDF", recording.UNREADABLE_FIX)
+    """:func:`calib.io.recording._unreadable` (one wording for every reader); a RecordingError passes as it is."""
+    return exc if isinstance(exc, RecordingError) else recording._unreadable(path, exc)
 
 
 def slice_bounds(n_time_chunk: int | None, start: int, stop: int, target: int) -> list[tuple[int, int]]:
