@@ -457,6 +457,12 @@ def _say(text):
     print(" ".join(text.split()) if "\n" in text else text, file=sys.stderr)
 
 
+def _not_started(sig: str = "SIGINT") -> None:
+    """The one line of an interrupt that came before the command started (while the sub-commands load, or before
+    a warm server took the command over: :mod:`calib.cli.server`): nothing was written."""
+    _say(f"calib: interrupted by {sig}; nothing written")
+
+
 def _os_message(exc: OSError) -> str:
     where = f"{exc.filename}: " if exc.filename else ""
     return f"{where}{exc.strerror or exc}"
@@ -613,7 +619,7 @@ def main(argv=None, *, exiting: bool = False):
             formats.register(sub)
             a = p.parse_args(argv)   # argparse's own usage errors exit 2
     except KeyboardInterrupt as exc:
-        _say(f"calib: interrupted by {'SIGTERM' if isinstance(exc, Terminated) else 'SIGINT'}; nothing written")
+        _not_started("SIGTERM" if isinstance(exc, Terminated) else "SIGINT")
         return getattr(exc, "exit_code", EXIT_SIGINT)
     return _dispatch(a, exiting)
 

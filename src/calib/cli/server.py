@@ -52,6 +52,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from calib import cli   # the package this module belongs to (loaded before it)
 from calib.core.errors import EXIT_INTERNAL, EXIT_SIGINT
 
 ENV = "CALIB_SERVER"
@@ -151,7 +152,7 @@ def run_served(argv) -> int | None:
         return _hand_over(s, path, k, argv)
     except KeyboardInterrupt:   # Ctrl-C before the run took over (a run already started sees the socket close)
         s.close()
-        print("calib: interrupted by SIGINT; nothing written", file=sys.stderr)
+        cli._not_started()
         return EXIT_SIGINT
 
 
@@ -412,15 +413,13 @@ def _run(conn, fds, req) -> None:
         sys.argv = ["calib", *req["argv"]]
         conn.sendall(b"A")
         _watch(conn)
-        from calib import cli
-
         code = cli.main(req["argv"], exiting=True)
     except SystemExit as exc:   # argparse's usage errors and --help
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
         if isinstance(exc.code, str):
             print(exc.code, file=sys.stderr)
     except KeyboardInterrupt:   # a Ctrl-C before the command's own handlers were in place
-        print("calib: interrupted by SIGINT; nothing written", file=sys.stderr)
+        cli._not_started()
         code = EXIT_SIGINT
     except BaseException:  # noqa: BLE001 - the command reports a run without an exit code
         code = EXIT_INTERNAL
