@@ -32,7 +32,6 @@ the null space of ``J`` (the data cannot tell it apart from a combination of the
 from __future__ import annotations
 
 import copy
-import hashlib
 import math
 
 import numpy as np
@@ -205,9 +204,7 @@ _NUISANCE: dict = {}
 def _nuisance_spectra(sim, clean) -> dict:
     """The base model's 24 nuisance columns (:func:`_nuisance_columns`) as per-channel spectra, kept for the last
     noise-free session (by content and unit): the single-effect sessions of the proof share them."""
-    key = (hashlib.blake2b(np.ascontiguousarray(clean).tobytes(), digest_size=16).hexdigest(),
-           float(sim.sample_rate_hz)) + tuple(float(v) for m in (sim.accel, sim.gyro)
-                                            for v in np.concatenate([np.ravel(m.K), np.ravel(m.E), np.ravel(m.b)]))
+    key = physical.signal_key(sim, clean)
     if key not in _NUISANCE:
         _NUISANCE.clear()
         names, cols = _nuisance_columns(sim, clean)

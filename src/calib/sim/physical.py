@@ -56,16 +56,24 @@ def _inputs(model, inc, dt):
     return model.inverse(inc / dt)
 
 
-#: the inputs (and sensor-axis inputs) recovered from the last noise-free signal, by its content, the simulator's
-#: base models and the sample interval: the Fisher bound injects many effects into one signal (one entry)
+def signal_key(sim, clean: np.ndarray) -> tuple:
+    """What a result computed from the noise-free signal ``clean`` of ``sim``'s unit depends on: the signal's
+    content (a digest), the sample rate and the unit's base models (K, E, b of both triads). For the one-entry
+    caches of the many computations on one signal (here, and the Fisher bound's nuisance spectra)."""
+    return (hashlib.blake2b(np.ascontiguousarray(clean).tobytes(), digest_size=16).digest(),
+            float(sim.sample_rate_hz)) + tuple(float(v) for m in (sim.accel, sim.gyro)
+                                               for v in np.concatenate([np.ravel(m.K), np.ravel(m.E), np.ravel(m.b)]))
+
+
+#: the inputs (and sensor-axis inputs) recovered from the last noise-free signal (:func:`signal_key`): the Fisher
+#: bound injects many effects into one signal (one entry)
 _BASE_INPUTS: dict = {}
 
 
 def _base_inputs(sim, clean: np.ndarray, dt: float):
     """``(xa, xg, ya, yg)`` of ``clean`` (see :func:`inject`), computed once per signal content (read-only use)."""
     acc, gyr = sim.accel, sim.gyro
-    key = (hashlib.blake2b(np.ascontiguousarray(clean).tobytes(), digest_size=16).digest(), float(dt)) + tuple(
-        float(v) for m in (acc, gyr) for v in np.concatenate([np.ravel(m.K), np.ravel(m.E), np.ravel(m.b)]))
+    key = signal_key(sim, clean)
     hit = _BASE_INPUTS.get("entry")
     if hit is None or hit[0] != key:
         xa = _inputs(acc, clean[:, :3], dt)          # g, body frame
