@@ -70,14 +70,17 @@ def atomic_path(path, suffix: str = ".part", make_parents: bool = True):
         raise
 
 
+#: the encoding of every text product: UTF-8 whatever the locale (the same bytes everywhere); a character UTF-8
+#: cannot hold -- a lone surrogate, which is how Python keeps a file name that was not valid UTF-8 -- is written as
+#: its escape (``\\udcff``), as the terminal shows it, instead of failing half-way through a set of products
+TEXT_ENCODING = {"encoding": "utf-8", "errors": "backslashreplace"}
+
+
 def write_text(path, text: str, make_parents: bool = True) -> Path:
-    """Write ``text`` to ``path`` atomically, in UTF-8 whatever the locale (the same bytes everywhere). A
-    character UTF-8 cannot hold -- a lone surrogate, which is how Python keeps a file name that was not valid
-    UTF-8 -- is written as its escape (``\\udcff``), as the terminal shows it, instead of failing half-way
-    through a set of products."""
+    """Write ``text`` to ``path`` atomically (:data:`TEXT_ENCODING`)."""
     path = Path(path)
     with atomic_path(path, make_parents=make_parents) as tmp:
-        tmp.write_text(text, encoding="utf-8", errors="backslashreplace")
+        tmp.write_text(text, **TEXT_ENCODING)
     return path
 
 

@@ -46,7 +46,7 @@ from calib import __version__
 from calib.core.errors import InputError
 from calib.core.triad import TriadModel
 from calib.io import EXPORT_FORMATS
-from calib.io.atomic import atomic_path
+from calib.io.atomic import TEXT_ENCODING, atomic_path
 from calib.io.netcdf import conventions, internal_units
 from calib.io.recording import unit_factor
 
@@ -366,7 +366,7 @@ def _write_all(texts: dict) -> list:
     with contextlib.ExitStack() as stack:
         for path, text in texts.items():
             tmp = stack.enter_context(atomic_path(path))
-            tmp.write_text(text, encoding="utf-8", errors="backslashreplace")   # as calib.io.atomic.write_text
+            tmp.write_text(text, **TEXT_ENCODING)
     return list(texts)
 
 

@@ -85,15 +85,9 @@ def provenance(rule: str = "", cfg=None, seed=None) -> dict:
     return attrs
 
 
-def creatable_name(path) -> Path:
-    """``path`` as a :class:`Path` if the netCDF library can create a file there (:func:`calib.io.atomic.utf8_name`:
-    an :class:`InputError` naming the file and the fix instead of the library's encoding error)."""
-    return utf8_name(path, "netCDF output")
-
-
 def write_netcdf(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
     """Write ``ds`` to ``path`` atomically (temporary name, then rename) with the fixed engine."""
-    path = creatable_name(path)
+    path = utf8_name(path, "netCDF output")
     ds = cf_dataset(ds)
     if prov is None and "calib_version" not in ds.attrs:
         prov = provenance()
@@ -112,7 +106,7 @@ class AtomicNetCDF:
     """
 
     def __init__(self, path):
-        self.path = creatable_name(path)
+        self.path = utf8_name(path, "netCDF output")
         self.tmp = temp_path(self.path)
         self.nc = None
 

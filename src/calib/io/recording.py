@@ -42,9 +42,8 @@ import xarray as xr
 
 from calib.core import earth
 from calib.core.errors import InputError
-from calib.io.atomic import atomic_path
-from calib.io.netcdf import (CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, creatable_name, internal_units,
-                             write_netcdf)
+from calib.io.atomic import atomic_path, utf8_name
+from calib.io.netcdf import CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, internal_units, write_netcdf
 
 CONVENTIONS = "calib-recording-1"
 AXES = ("x", "y", "z")
@@ -552,7 +551,7 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
 def write(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
     """Write an in-memory recording atomically: it is validated under its temporary name and appears under
     ``path`` only when valid, so a refused recording never replaces an earlier file."""
-    path = creatable_name(path)
+    path = utf8_name(path, "recording")
     with atomic_path(path) as tmp:
         write_netcdf(ds, tmp, prov)
         try:
