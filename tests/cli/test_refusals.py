@@ -335,6 +335,31 @@ def test_interrupt_removes_the_partial_file_and_keeps_the_earlier_output(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["nav.nc"]
 
 
+def test_diagnose_interrupted_after_its_figures_leaves_the_earlier_report_whole(tmp_path, capsys, count_session,
+                                                                              monkeypatch):
+    """The report's figures and its two files are one set: an interrupt once the figures are drawn (here: while the
+    Markdown is made, the last step) leaves the earlier run's report and figures as they were, none of this run's
+    (a served run interrupted there once left new figures beside no report)."""
+    from calib.diagnosis import run as diagnosis_run
+
+    out = tmp_path / "diag"
+    out.mkdir()
+    earlier = {"report.json": '{"verdict": "adequate"}\n', "report.md": "earlier report\n",
+               "allan_deviation.png": "earlier figure"}
+    for name, text in earlier.items():
+        (out / name).write_text(text)
+
+    def interrupted(rep):
+        assert (out / "residuals_before_after.png").exists() is False   # drawn, not yet in place
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(diagnosis_run, "report_markdown", interrupted)
+    code, err = run(capsys, "diagnose", count_session, "--out", out)
+    assert code == 130 and "interrupted by SIGINT" in err
+    assert {p.name: p.read_text() for p in out.iterdir()} == earlier
+    assert leftovers(tmp_path) == []
+
+
 def test_diagnose_on_bad_input_exits_2_and_keeps_an_earlier_report(tmp_path, capsys, static_rates):
     acc, gyr = static_rates
     bad = physical(tmp_path, "bad.nc", acc, gyr, accel_units="g")

@@ -129,16 +129,29 @@ def test_a_refusal_is_the_same_when_served(warm, tmp_path):
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to find the run's process")
 @pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
 def test_a_signal_of_the_command_ends_its_run(warm, tmp_path, signum, code, name):
-    out = tmp_path / "o"
-    p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
-                         env=warm["env"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # as from a terminal
-    _under_way(warm["runtime"])
-    p.send_signal(signum)
-    _, err = p.communicate(timeout=120)
-    assert p.returncode == code, err
-    assert f"calib diagnose: interrupted by {name}" in err
-    assert not out.exists() or list(out.iterdir()) == []
+    """The signal comes 0.3 s into a run of ~1.3 s. On a loaded machine it may come later, even after the run: then
+    the run's outputs are the whole set (never a part of it) and the test tries again, up to three times, until
+    one run was ended by it (exit 130 / 143, its line, nothing written)."""
+    outcomes = []
+    for attempt in range(3):
+        out = tmp_path / f"o{attempt}"
+        p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
+                             env=warm["env"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # as from a terminal
+        _under_way(warm["runtime"])
+        p.send_signal(signum)
+        _, err = p.communicate(timeout=120)
+        written = sorted(x.name for x in out.iterdir()) if out.exists() else []
+        if written:   # the signal came after the outputs were complete: all of them, as the cold run wrote them
+            _assert_outputs_of_the_cold_run(warm, out, str(out))
+            assert p.returncode in (code, warm["cold"].returncode), err
+        else:
+            assert p.returncode == code, err
+            assert f"calib diagnose: interrupted by {name}" in err
+        outcomes.append((p.returncode, written))
+        if p.returncode == code and not written:
+            break
+    assert outcomes[-1] == (code, []), outcomes
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to find the run's process")

@@ -289,6 +289,7 @@ def _diagnose(a, h=None):
             h.submit([("calib.figures.diagnosis:warm_up", ())])   # the plotting library, loaded meanwhile
     from calib.diagnosis import diagnose
     from calib.diagnosis.problem import settings_of
+    from calib.io.atomic import output_set
 
     if settings:   # names, types and ranges, refused naming the file and the setting
         settings_of(settings, file=a.settings)
@@ -304,13 +305,14 @@ def _diagnose(a, h=None):
     intervals = None
     if a.fieldcal:   # the static intervals the field calibration used: one answer per file
         intervals = _fieldcal_intervals(a.fieldcal)
-    rep = diagnose(a.recording, settings, out_dir=a.out, intervals=intervals,
-                   intervals_source=str(a.fieldcal or ""))
-    if a.limits:   # detection limits on this recording's own noise, added to the report
-        from calib.studies import real_proof
+    with output_set():   # the report, its figures and its detection limits: all of them or none
+        rep = diagnose(a.recording, settings, out_dir=a.out, intervals=intervals,
+                       intervals_source=str(a.fieldcal or ""))
+        if a.limits:   # detection limits on this recording's own noise, added to the report
+            from calib.studies import real_proof
 
-        rep = real_proof.limits_into_report(a.recording, a.out, rep, settings, reps=a.limits_reps,
-                                            intervals=intervals, intervals_source=str(a.fieldcal or ""))
+            rep = real_proof.limits_into_report(a.recording, a.out, rep, settings, reps=a.limits_reps,
+                                                intervals=intervals, intervals_source=str(a.fieldcal or ""))
     emit(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
     return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 3)   # exit code: 3 inconclusive
 

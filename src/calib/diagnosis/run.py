@@ -1,6 +1,7 @@
 """Running the diagnosis on a recording file or an in-memory dataset: the one entry point :func:`diagnose`."""
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from pathlib import Path
@@ -15,7 +16,7 @@ from calib.diagnosis.problem import settings_of
 from calib.diagnosis.report import build_report, inconclusive_report, report_markdown, start_figures
 from calib.diagnosis.vector import setup_problem
 from calib.io import recording
-from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
+from calib.io.atomic import output_set, write_json as write_json_atomic, write_text as write_text_atomic
 from calib.io.recording import RecordingError
 from calib.signal import detect
 from calib.signal.segments import SegmentError
@@ -43,16 +44,19 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
     library / geometry is reused (:func:`calib.diagnosis.vector.setup_problem`)."""
     st = settings_of(settings)
     t0 = time.perf_counter()
-    with single_thread_blas():
-        rep, prob = _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from)
-    rep["elapsed_s"] = time.perf_counter() - t0
-    if ds.attrs.get("segments_from"):
-        rep["segments_from"] = str(ds.attrs["segments_from"])
-    if out_dir is not None:
-        out_dir = Path(out_dir)
-        # the wall time stays out of the file, so that the same input gives the same report
-        write_json_atomic({k: v for k, v in rep.items() if k != "elapsed_s"}, out_dir / "report.json")
-        write_text_atomic(out_dir / "report.md", report_markdown(rep))
+    # the figures and the two reports appear together or not at all (an interruption between them left figures
+    # without their report, or beside an earlier run's)
+    with output_set() if out_dir is not None else contextlib.nullcontext():
+        with single_thread_blas():
+            rep, prob = _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from)
+        rep["elapsed_s"] = time.perf_counter() - t0
+        if ds.attrs.get("segments_from"):
+            rep["segments_from"] = str(ds.attrs["segments_from"])
+        if out_dir is not None:
+            out_dir = Path(out_dir)
+            # the wall time stays out of the file, so that the same input gives the same report
+            write_json_atomic({k: v for k, v in rep.items() if k != "elapsed_s"}, out_dir / "report.json")
+            write_text_atomic(out_dir / "report.md", report_markdown(rep))
     return rep, prob
 
 
@@ -140,5 +144,6 @@ def load_for_diagnosis(path, settings=None, intervals=None, intervals_source: st
 
 def _write_refusal(rep: dict, out_dir):
     if out_dir is not None:
-        write_json_atomic(rep, Path(out_dir) / "report.json")
-        write_text_atomic(Path(out_dir) / "report.md", report_markdown(rep))
+        with output_set():
+            write_json_atomic(rep, Path(out_dir) / "report.json")
+            write_text_atomic(Path(out_dir) / "report.md", report_markdown(rep))

@@ -6,8 +6,9 @@ final name only when complete (``os.replace`` is atomic within a file system). O
 temporary file gets the permissions a plain ``open`` would give (``0o666`` less the umask), not the ``0o600``
 of :func:`tempfile.mkstemp`.
 
-This is the one implementation: netCDF (:mod:`calib.io.netcdf`), figures (:mod:`calib.figures.style`),
-JSON, Markdown and CSV products all go through :func:`atomic_path`.
+This is the one implementation: netCDF (:mod:`calib.io.netcdf`), figures (:mod:`calib.figures.output`),
+JSON, Markdown and CSV products all go through :func:`atomic_path` (or :func:`finish`). A command whose products
+belong together writes them in one :func:`output_set`: they then appear all at once, or none does.
 """
 from __future__ import annotations
 
@@ -15,7 +16,9 @@ import contextlib
 import json
 import math
 import os
-import tempfile
+import signal
+import secrets
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -38,36 +41,119 @@ def utf8_name(path, what: str = "output") -> Path:
     return path
 
 
-def umask() -> int:
-    """The process umask (read without changing it for longer than one call)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def _temp_name(path: Path, suffix: str) -> Path:
+    """A fresh name beside ``path`` (``.NAME.XXXXXXXX.part``); nothing is created."""
+    return path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix}"
 
 
-def temp_path(path, suffix: str = ".part", make_parents: bool = True) -> Path:
-    """A new empty file beside ``path`` with the permissions a plain ``open`` would give."""
-    path = Path(path)
-    if make_parents:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    os.chmod(tmp, 0o666 & ~umask())
-    return Path(tmp)
+def _create(tmp: Path) -> None:
+    """Create the empty file ``tmp`` (not there before), with the permissions a plain ``open`` gives: ``0o666``
+    less the umask."""
+    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
 
 
 @contextlib.contextmanager
 def atomic_path(path, suffix: str = ".part", make_parents: bool = True):
-    """Yield a temporary path beside ``path``; rename it to ``path`` on a clean exit, delete it otherwise."""
+    """Yield a temporary path beside ``path``; rename it to ``path`` on a clean exit, delete it otherwise. Inside
+    an :func:`output_set` the rename waits for the end of the set.
+
+    The temporary name is chosen before the file is created and the file created inside the block that removes it:
+    an interruption at any point -- even between the creation and the line after it -- leaves no file behind."""
     path = Path(path)
-    tmp = temp_path(path, suffix, make_parents)
+    if make_parents:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _temp_name(path, suffix)
     try:
+        while True:
+            try:
+                _create(tmp)
+                break
+            except FileExistsError:   # another writer's: the loop tries another name (never removes that file)
+                tmp = _temp_name(path, suffix)
         yield tmp
-        os.replace(tmp, path)
+        finish(tmp, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+        _discard([tmp])
         raise
+
+
+def finish(tmp, path) -> None:
+    """The complete temporary file ``tmp`` becomes ``path``: now, or at the end of the open :func:`output_set`."""
+    pending = _open_set()
+    if pending is None:
+        os.replace(tmp, path)
+    else:
+        _discard([pending.pop(Path(path), None)])   # written twice in one set: the later content
+        pending[Path(path)] = tmp
+
+
+_SETS = threading.local()
+
+
+def _open_set() -> dict | None:
+    """The pending ``{final path: temporary path}`` of this thread's open :func:`output_set`, or None."""
+    return getattr(_SETS, "pending", None)
+
+
+def _discard(paths) -> None:
+    for p in paths:
+        if p is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(p)
+
+
+@contextlib.contextmanager
+def output_set():
+    """The products written in the block (through :func:`atomic_path`: every writer of this module, figures,
+    netCDF) appear together when the block ends cleanly, or none of them does: a command's outputs -- e.g.
+    ``calib diagnose``'s report.json, report.md and figures -- are never a mixture of one run's files and
+    another's, or of a run that was interrupted. Until the end each product waits complete under its temporary
+    name; on any error or interruption in the block the temporary files go and the previous products are left
+    untouched. A set opened inside another joins it.
+
+    The renames at the end run with SIGINT and SIGTERM held back (their Python handlers deferred: a KeyboardInterrupt
+    between two renames would leave half a set); a signal that came meanwhile is raised again once every product
+    is in place. A rename that fails (the name is a folder) leaves the products renamed before it and removes the
+    rest (an error, as before)."""
+    if _open_set() is not None:
+        yield
+        return
+    pending = _SETS.pending = {}
+    came: list = []
+    try:
+        try:
+            yield
+        finally:
+            _SETS.pending = None
+        with _signals_held(came):
+            for path, tmp in list(pending.items()):
+                os.replace(tmp, path)
+                del pending[path]
+    finally:
+        _discard(pending.values())
+    if came:
+        signal.raise_signal(came[0])
+
+
+@contextlib.contextmanager
+def _signals_held(came: list):
+    """SIGINT / SIGTERM appended to ``came`` instead of handled for the block (Python runs its handlers in the main
+    thread only: elsewhere nothing to hold)."""
+    old = {}
+
+    def hold(signum, frame):
+        came.append(signum)
+
+    try:
+        if threading.current_thread() is threading.main_thread():
+            for s in (signal.SIGINT, signal.SIGTERM):
+                h = signal.getsignal(s)
+                if callable(h):   # a Python handler (ignored / default dispositions stay as they are)
+                    old[s] = signal.signal(s, hold)
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 #: the encoding of every text product: UTF-8 whatever the locale (the same bytes everywhere); a character UTF-8

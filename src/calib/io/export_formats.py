@@ -33,7 +33,6 @@ the same corrected samples).
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -46,7 +45,7 @@ from calib import __version__
 from calib.core.errors import InputError
 from calib.core.triad import TriadModel
 from calib.io import EXPORT_FORMATS
-from calib.io.atomic import TEXT_ENCODING, atomic_path
+from calib.io.atomic import output_set, write_text
 from calib.io.netcdf import conventions, internal_units
 from calib.io.recording import unit_factor
 
@@ -363,10 +362,9 @@ def export(cal: Calibration, fmt: str, out) -> list:
 
 def _write_all(texts: dict) -> list:
     """Write several text files so that either all appear complete or none does."""
-    with contextlib.ExitStack() as stack:
+    with output_set():
         for path, text in texts.items():
-            tmp = stack.enter_context(atomic_path(path))
-            tmp.write_text(text, **TEXT_ENCODING)
+            write_text(path, text)
     return list(texts)
 
 

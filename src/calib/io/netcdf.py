@@ -7,10 +7,8 @@ complete, so a failure never leaves a half-written file under the final name.
 """
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
-import os
 import re
 import subprocess
 from pathlib import Path
@@ -18,7 +16,7 @@ from pathlib import Path
 import netCDF4
 import xarray as xr
 
-from calib.io.atomic import atomic_path, temp_path, utf8_name
+from calib.io.atomic import atomic_path, utf8_name
 from calib import __version__
 
 ENGINE = "netcdf4"
@@ -100,35 +98,31 @@ def write_netcdf(ds: xr.Dataset, path, prov: dict | None = None) -> Path:
 
 
 class AtomicNetCDF:
-    """Context manager giving a ``netCDF4.Dataset`` open for writing under a temporary name.
+    """Context manager giving a ``netCDF4.Dataset`` open for writing under a temporary name
+    (:func:`calib.io.atomic.atomic_path`: created on entry, never before).
 
     On a clean exit the file is closed and renamed to ``path``; on an exception it is deleted.
     """
 
     def __init__(self, path):
         self.path = utf8_name(path, "netCDF output")
-        self.tmp = temp_path(self.path)
         self.nc = None
+        self._file = None
 
     def __enter__(self) -> netCDF4.Dataset:
+        self._file = atomic_path(self.path)
+        tmp = self._file.__enter__()
         try:
-            self.nc = netCDF4.Dataset(self.tmp, "w", format="NETCDF4")
-        except BaseException:
-            with contextlib.suppress(FileNotFoundError):
-                self.tmp.unlink()
+            self.nc = netCDF4.Dataset(tmp, "w", format="NETCDF4")
+        except BaseException as exc:
+            self._file.__exit__(type(exc), exc, exc.__traceback__)
             raise
         return self.nc
 
     def __exit__(self, exc_type, exc, tb):
         try:
             self.nc.close()
-            if exc_type is None:
-                os.replace(self.tmp, self.path)
-        except BaseException:
-            with contextlib.suppress(FileNotFoundError):
-                self.tmp.unlink()
+        except BaseException as err:
+            self._file.__exit__(type(err), err, err.__traceback__)
             raise
-        if exc_type is not None:
-            with contextlib.suppress(FileNotFoundError):
-                self.tmp.unlink()
-        return False
+        return self._file.__exit__(exc_type, exc, tb)
