@@ -155,6 +155,10 @@ def test_a_signal_leaves_no_process_and_no_partial_file(tmp_path, session, signu
         assert "interrupted by" in err
     report = (out / "report.json").read_text()
     assert report == "earlier report\n" or json.loads(report)["format"] == "calib-diagnosis-1"
+    # the outputs are one set: the earlier report alone, or the new report with its Markdown and both figures
+    assert names in (["report.json"], ["allan_deviation.png", "report.json", "report.md",
+                                       "residuals_before_after.png"]), names
+    assert (names == ["report.json"]) == (report == "earlier report\n"), names
 
 
 @pytest.mark.parametrize("change", [False, True])
