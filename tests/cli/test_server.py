@@ -129,16 +129,16 @@ def test_a_refusal_is_the_same_when_served(warm, tmp_path):
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs /proc to find the run's process")
 @pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "SIGINT"), (signal.SIGTERM, 143, "SIGTERM")])
 def test_a_signal_of_the_command_ends_its_run(warm, tmp_path, signum, code, name):
-    """The signal comes 0.3 s into a run of ~1.3 s. On a loaded machine it may come later, even after the run: then
-    the run's outputs are the whole set (never a part of it) and the test tries again, up to three times, until
-    one run was ended by it (exit 130 / 143, its line, nothing written)."""
+    """The signal comes once the run has its handlers, ~1 s before its end. On a loaded machine it may come later,
+    even after the run: then the run's outputs are the whole set (never a part of it) and the test tries again, up
+    to three times, until one run was ended by it (exit 130 / 143, its line, nothing written)."""
     outcomes = []
     for attempt in range(3):
         out = tmp_path / f"o{attempt}"
         p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
                              env=warm["env"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # as from a terminal
-        _under_way(warm["runtime"])
+        _under_way(warm["runtime"], p.pid)
         p.send_signal(signum)
         _, err = p.communicate(timeout=120)
         written = sorted(x.name for x in out.iterdir()) if out.exists() else []
@@ -162,31 +162,47 @@ def test_a_signal_the_command_ignores_is_ignored_by_its_run(warm, tmp_path):
     p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
                          env=warm["env"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
-    _under_way(warm["runtime"])
+    _under_way(warm["runtime"], p.pid)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
     assert p.returncode == warm["cold"].returncode, err
     _assert_outputs_of_the_cold_run(warm, out, str(out))
 
 
-def _under_way(runtime):
-    """Wait until the server has forked the run, then 0.3 s more (its handlers are in place; a served run of this
-    recording takes over 1 s)."""
+def _under_way(runtime, client: int):
+    """Wait until the run is under way and a signal of the command reaches it: the server has forked the run, the
+    run has started its command (its helper process is there: forked by ``calib diagnose`` inside the command's
+    signal handling) and the command ``client`` passes signals on (it catches SIGTERM from then on:
+    /proc/PID/status SigCgt). Before that a signal ends a run that has not started -- another outcome. A served
+    run of this recording takes over 1 s from there."""
     t0 = time.monotonic()
-    while not _runs(runtime) and time.monotonic() - t0 < 60:
-        time.sleep(0.02)
-    assert _runs(runtime), "the server forked no run"
-    time.sleep(0.3)
+    while time.monotonic() - t0 < 60:
+        if _catches(client, signal.SIGTERM) and any(_children(pid) for pid in _runs(runtime)):
+            return
+        time.sleep(0.01)
+    raise AssertionError("no run of the server started its command")
+
+
+def _catches(pid, signum) -> bool:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("SigCgt:"):
+                return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+    except (OSError, ValueError):
+        pass
+    return False
+
+
+def _children(pid) -> list:
+    try:
+        return Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    except OSError:
+        return []
 
 
 def _runs(runtime):
     """Processes forked from the test's servers that are still alive (the server itself excluded)."""
-    pids = []
-    for k, pid, _ in _servers(runtime):
-        kids = Path(f"/proc/{pid}/task/{pid}/children")
-        if kids.exists():
-            pids += [int(x) for x in kids.read_text().split()]
-    return pids
+    return [int(x) for _, pid, _ in _servers(runtime) for x in _children(pid)]
 
 
 def _servers(runtime):
@@ -211,7 +227,7 @@ def test_a_command_killed_outright_leaves_no_run(warm, tmp_path):
         out = tmp_path / f"o{attempt}"
         p = subprocess.Popen([sys.executable, "-c", CLIENT, "diagnose", str(warm["rec"]), "--out", str(out)],
                              env=warm["env"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        _under_way(warm["runtime"])
+        _under_way(warm["runtime"], p.pid)
         p.kill()
         p.wait(timeout=30)
         t0 = time.monotonic()
