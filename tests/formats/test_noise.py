@@ -133,3 +133,38 @@ def test_cli_noise_writes_report_figure_and_kalibr_yaml(tmp_path):
               "--bootstrap", "20", "--force")
     assert r.returncode == 2 and "Kalibr needs SI rates" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "imu2.yaml").exists()
+
+
+def test_calib_noise_interrupted_at_its_last_figure_leaves_the_earlier_products_whole(tmp_path, capsys, monkeypatch):
+    """calib noise's report, figures and Kalibr file are one set: an interrupt while the last figure is written
+    leaves the earlier run's files as they were and none of this run's."""
+    from calib import cli
+    from calib.figures import style
+
+    fs = 100.0
+    gyr = white_plus_walk(21, 8192, fs=fs)
+    acc = white_plus_walk(22, 8192, fs=fs) + [0.0, 0.0, 9.81]
+    ds = recording.make_dataset(acc, gyr, sample_rate_hz=fs, latitude_deg=48.0, accel_units="m s-2",
+                                gyro_units="rad s-1", source="synthetic")
+    rec = recording.write(ds, tmp_path / "static.nc")
+    out = tmp_path / "noise"
+    out.mkdir()
+    earlier = {"noise.json": "{}\n", "noise.md": "earlier\n", "allan.svg": "<svg/>"}
+    for name, text in earlier.items():
+        (out / name).write_text(text)
+    save = style.save
+
+    def interrupted_at_png(fig, path):
+        if str(path).endswith(".png"):
+            style.plt.close(fig)
+            raise KeyboardInterrupt
+        return save(fig, path)
+
+    monkeypatch.setattr(style, "save", interrupted_at_png)
+    code = cli.main(["noise", str(rec), "--out", str(out), "--kalibr", str(tmp_path / "imu.yaml"), "--topic", "/imu",
+                     "--bootstrap", "20"])
+    err = capsys.readouterr().err
+    assert code == 130 and "interrupted by SIGINT" in err
+    assert {p.name: p.read_text() for p in out.iterdir()} == earlier
+    assert not (tmp_path / "imu.yaml").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["noise", "static.nc"]

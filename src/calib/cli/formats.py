@@ -67,7 +67,7 @@ def cmd_noise(a):
     from calib.core.progress import Progress
     from calib.figures import style
     from calib.io import export_formats, recording
-    from calib.io.atomic import write_json, write_text
+    from calib.io.atomic import output_set, write_json, write_text
     from calib.signal import ieee952
     from calib.signal.segments import rate_reading
 
@@ -126,13 +126,14 @@ def cmd_noise(a):
            "definitions": ieee952.DEFINITIONS, "sensors": {s: r.to_dict() for s, r in results.items()},
            "kalibr": kal, "notes": notes}
     out.mkdir(parents=True, exist_ok=True)
-    write_json(rep, out / "noise.json")
-    write_text(out / "noise.md", ieee952.report_markdown(results, src, kal, notes))
-    for suffix in (".svg", ".png"):
-        style.save(ieee952.plot(results, f"Allan deviation of {src} ({h.n_samples / fs / 3600.0:.3g} h at "
-                                         f"{fs:.6g} Hz)"), out / f"allan{suffix}")
-    if a.kalibr:
-        write_text(a.kalibr, export_formats.kalibr_yaml(kal, rostopic, fs, src))
+    with output_set():   # the report, its figures and Kalibr's file: all of them or none
+        write_json(rep, out / "noise.json")
+        write_text(out / "noise.md", ieee952.report_markdown(results, src, kal, notes))
+        for suffix in (".svg", ".png"):
+            style.save(ieee952.plot(results, f"Allan deviation of {src} ({h.n_samples / fs / 3600.0:.3g} h at "
+                                             f"{fs:.6g} Hz)"), out / f"allan{suffix}")
+        if a.kalibr:
+            write_text(a.kalibr, export_formats.kalibr_yaml(kal, rostopic, fs, src))
     lines = {"out": str(out)}
     if kal:
         lines["kalibr"] = {k: v["value"] for k, v in kal.items()}
