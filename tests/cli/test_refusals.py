@@ -399,6 +399,23 @@ def test_calibration_outside_the_plausible_range_exits_3(tmp_path, capsys, count
     assert (out / "default_calibration.nc").exists() and leftovers(tmp_path) == []
 
 
+def test_calibrate_interrupted_before_its_default_calibration_writes_nothing(tmp_path, capsys, count_session,
+                                                                             monkeypatch):
+    """The calibration study's products (optimizer runs, tables, figures, the default calibration) are one set: an
+    interrupt once the runs, tables and figures are written, before the default calibration, leaves none of them."""
+    from calib.studies import calibration as calibration_study
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibration_study, "write_default", interrupted)
+    out = tmp_path / "cal"
+    code, err = run(capsys, "calibrate", count_session, "--out", out, "--quick", "--config", SMALL_CONFIG)
+    assert code == 130 and "interrupted by SIGINT" in err
+    assert [str(p.relative_to(out)) for p in out.rglob("*") if not p.is_dir()] == []   # (its empty folders stay)
+    assert leftovers(tmp_path) == []
+
+
 def test_field_calibration_with_implausible_scale_factors_exits_3(tmp_path, capsys, count_session):
     ds = recording.load(count_session)
     acc = ds["accel"].values.astype(np.int64)

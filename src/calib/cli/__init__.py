@@ -196,6 +196,7 @@ def cmd_validate(a):
 
 
 def cmd_calibrate(a):
+    from calib.io.atomic import output_set
     from calib.signal import plausibility
     from calib.studies import calibration as calibration_study
 
@@ -209,8 +210,9 @@ def cmd_calibrate(a):
     cc = dict(cfg["calibration"])
     if a.quick:
         cc.update(runs=3, methods=["ide", "ide_lsq", "lsq"])
-    calibration_study.run_study(a.recording, a.truth, a.out, cc, cfg["seeds"]["calibration"],
-                                noise_record=a.noise_record)
+    with output_set():   # the runs, tables, figures and the default calibration: all of them or none
+        calibration_study.run_study(a.recording, a.truth, a.out, cc, cfg["seeds"]["calibration"],
+                                    noise_record=a.noise_record)
     plausibility.check_calibration_result(Path(a.out) / "default_calibration.nc")
     emit(f"wrote {a.out}")
 
