@@ -360,6 +360,19 @@ def test_diagnose_interrupted_after_its_figures_leaves_the_earlier_report_whole(
     assert leftovers(tmp_path) == []
 
 
+def test_simulate_interrupted_at_its_truth_file_writes_neither(tmp_path, capsys, monkeypatch):
+    """A recording and its truth sidecar are one set: interrupted while the truth is written, neither appears."""
+    from calib.sim import simulator as sim_module
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sim_module, "write_json", interrupted)
+    code, err = run(capsys, "simulate", "static_check", tmp_path / "s.nc", "--config", SMALL_CONFIG, "--hours", "0.005")
+    assert code == 130 and "interrupted by SIGINT" in err
+    assert sorted(os.listdir(tmp_path)) == []
+
+
 def test_diagnose_on_bad_input_exits_2_and_keeps_an_earlier_report(tmp_path, capsys, static_rates):
     acc, gyr = static_rates
     bad = physical(tmp_path, "bad.nc", acc, gyr, accel_units="g")

@@ -123,6 +123,7 @@ def _positive(value, option):
 
 
 def cmd_simulate(a):
+    from calib.io.atomic import output_set
     from calib.studies import stages
 
     cfg = _config(a.config)
@@ -143,18 +144,19 @@ def cmd_simulate(a):
     if a.kind != "calibration":
         _check_disk(a.out, a.hours or cfg[key]["duration_h"],
                     cfg[key].get("sample_rate_hz", cfg["calibration_session"]["sample_rate_hz"]))
-    if a.kind == "calibration":
-        stages.simulate_calibration(cfg["calibration_session"], cfg["site"], seed, a.out, truth)
-    elif a.kind == "navigation":
-        s = dict(cfg["navigation_session"])
-        if a.hours is not None:
-            s["duration_h"] = a.hours
-        stages.simulate_navigation(s, cfg["site"], seed, a.out, truth)
-    else:
-        c = dict(cfg["static_check"])
-        if a.hours is not None:
-            c["duration_h"] = a.hours
-        stages.simulate_static_check(c, cfg["calibration_session"], cfg["site"], seed, a.out, truth)
+    with output_set():   # the recording and its truth sidecar: both or neither
+        if a.kind == "calibration":
+            stages.simulate_calibration(cfg["calibration_session"], cfg["site"], seed, a.out, truth)
+        elif a.kind == "navigation":
+            s = dict(cfg["navigation_session"])
+            if a.hours is not None:
+                s["duration_h"] = a.hours
+            stages.simulate_navigation(s, cfg["site"], seed, a.out, truth)
+        else:
+            c = dict(cfg["static_check"])
+            if a.hours is not None:
+                c["duration_h"] = a.hours
+            stages.simulate_static_check(c, cfg["calibration_session"], cfg["site"], seed, a.out, truth)
     emit(f"wrote {a.out} (truth in {truth})")
 
 
