@@ -225,3 +225,27 @@ def test_apply_streams_a_long_recording_without_time_coordinate(tmp_path):
     np.testing.assert_allclose(c["gyro"].values, w_true, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(c["temperature"].values, 21.5)
     assert c.attrs["calibration_file"] == str(cal) and c.attrs["made_by_rule"] == "apply"
+
+
+def test_an_imutk_export_interrupted_after_its_first_file_writes_none(tmp_path, monkeypatch, capsys):
+    """IMU-TK's three files are one set: an interrupt once the first is written leaves none of them."""
+    from calib.io import atomic
+
+    cal = tmp_path / "default_calibration.nc"
+    write_netcdf(xr.Dataset({"accel": (("parameter",), triad.liu2021_model("accel").to_vector()),
+                             "gyro": (("parameter",), triad.liu2021_model("gyro").to_vector())},
+                            coords={"parameter": list(triad.PARAM_NAMES)},
+                            attrs={"frame": "body", "accel_units": "count s-1 per g",
+                                   "gyro_units": "count s-1 per deg/h"}), cal)
+    real, written = atomic.write_text, []
+
+    def interrupted_after_one(path, text, **kw):
+        if written:
+            raise KeyboardInterrupt
+        written.append(path)
+        return real(path, text, **kw)
+
+    monkeypatch.setattr("calib.io.export_formats.write_text", interrupted_after_one)
+    assert run("export", cal, "--format", "imutk", "--out", tmp_path / "liu") == 130
+    capsys.readouterr()
+    assert len(written) == 1 and sorted(p.name for p in tmp_path.iterdir()) == ["default_calibration.nc"]
