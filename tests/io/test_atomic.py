@@ -117,3 +117,15 @@ def test_a_temporary_file_has_the_permissions_of_a_plain_open(tmp_path):
         assert mode == os.stat(tmp_path / "plain").st_mode & 0o777 == 0o640
     finally:
         os.umask(old)
+
+
+def test_a_write_into_another_writers_temporary_file_is_not_held_by_the_set(tmp_path):
+    """calib.io.recording.write writes the netCDF atomically into its own temporary file, then validates that file:
+    inside a set the inner write must land at once (else the file checked is empty), the product at the set's end."""
+    with atomic.output_set():
+        with atomic.atomic_path(tmp_path / "rec.nc") as outer:
+            atomic.write_text(outer, "content")           # the inner writer: into the outer's temporary file
+            assert outer.read_text() == "content"
+        assert not (tmp_path / "rec.nc").exists()
+    assert (tmp_path / "rec.nc").read_text() == "content"
+    assert os.listdir(tmp_path) == ["rec.nc"]

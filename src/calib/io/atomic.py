@@ -63,6 +63,7 @@ def atomic_path(path, suffix: str = ".part", make_parents: bool = True):
     if make_parents:
         path.parent.mkdir(parents=True, exist_ok=True)
     tmp = _temp_name(path, suffix)
+    opened = _open_temps()
     try:
         while True:
             try:
@@ -70,17 +71,23 @@ def atomic_path(path, suffix: str = ".part", make_parents: bool = True):
                 break
             except FileExistsError:   # another writer's: the loop tries another name (never removes that file)
                 tmp = _temp_name(path, suffix)
+        opened.add(tmp)
         yield tmp
+        opened.discard(tmp)
         finish(tmp, path)
     except BaseException:
+        opened.discard(tmp)
         _discard([tmp])
         raise
 
 
 def finish(tmp, path) -> None:
-    """The complete temporary file ``tmp`` becomes ``path``: now, or at the end of the open :func:`output_set`."""
+    """The complete temporary file ``tmp`` becomes ``path``: now, or at the end of the open :func:`output_set` --
+    but at once when ``path`` is itself the temporary file of an enclosing :func:`atomic_path` (a writer that
+    writes atomically into another's temporary file: that one is then checked, e.g. :func:`calib.io.recording.write`
+    validates it, before it becomes a product)."""
     pending = _open_set()
-    if pending is None:
+    if pending is None or Path(path) in _open_temps():
         os.replace(tmp, path)
     else:
         _discard([pending.pop(Path(path), None)])   # written twice in one set: the later content
@@ -88,6 +95,13 @@ def finish(tmp, path) -> None:
 
 
 _SETS = threading.local()
+
+
+def _open_temps() -> set:
+    """This thread's temporary files of the :func:`atomic_path` blocks it is inside."""
+    if not hasattr(_SETS, "temps"):
+        _SETS.temps = set()
+    return _SETS.temps
 
 
 def _open_set() -> dict | None:
