@@ -129,3 +129,18 @@ def test_a_write_into_another_writers_temporary_file_is_not_held_by_the_set(tmp_
         assert not (tmp_path / "rec.nc").exists()
     assert (tmp_path / "rec.nc").read_text() == "content"
     assert os.listdir(tmp_path) == ["rec.nc"]
+
+
+def test_folders_made_for_a_set_that_failed_are_removed_again(tmp_path):
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        with atomic.output_set():
+            atomic.write_text(tmp_path / "new" / "deep" / "a.txt", "a")
+            atomic.write_text(tmp_path / "kept" / "sub" / "b.txt", "b")
+            atomic.make_folder(tmp_path / "other")
+            (tmp_path / "other" / "theirs.txt").write_text("not the set's")   # a folder no longer empty stays
+            raise KeyboardInterrupt
+    assert sorted(os.listdir(tmp_path)) == ["kept", "other"] and os.listdir(tmp_path / "kept") == []
+    with atomic.output_set():   # a set that ends with its products keeps its folders
+        atomic.write_text(tmp_path / "new" / "deep" / "a.txt", "a")
+    assert (tmp_path / "new" / "deep" / "a.txt").read_text() == "a"

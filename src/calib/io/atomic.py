@@ -61,7 +61,7 @@ def atomic_path(path, suffix: str = ".part", make_parents: bool = True):
     an interruption at any point -- even between the creation and the line after it -- leaves no file behind."""
     path = Path(path)
     if make_parents:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        make_folder(path.parent)
     tmp = _temp_name(path, suffix)
     opened = _open_temps()
     try:
@@ -79,6 +79,20 @@ def atomic_path(path, suffix: str = ".part", make_parents: bool = True):
         opened.discard(tmp)
         _discard([tmp])
         raise
+
+
+def make_folder(folder: Path) -> None:
+    """``folder`` and its missing parents; inside an :func:`output_set` the folders made are noted, so that a set
+    that ends without its products removes them again (when still empty)."""
+    missing = []
+    f = folder
+    while not f.exists() and f != f.parent:
+        missing.append(f)
+        f = f.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    made = getattr(_SETS, "folders", None)
+    if made is not None and _open_set() is not None:
+        made.extend(missing)
 
 
 def finish(tmp, path) -> None:
@@ -128,23 +142,32 @@ def output_set():
     The renames at the end run with SIGINT and SIGTERM held back (their Python handlers deferred: a KeyboardInterrupt
     between two renames would leave half a set); a signal that came meanwhile is raised again once every product
     is in place. A rename that fails (the name is a folder) leaves the products renamed before it and removes the
-    rest (an error, as before)."""
+    rest (an error, as before). Folders made for the products inside the set are removed again, when still empty, if
+    the set ends without its products."""
     if _open_set() is not None:
         yield
         return
     pending = _SETS.pending = {}
+    folders = _SETS.folders = []
     came: list = []
+    done = False
     try:
         try:
             yield
         finally:
             _SETS.pending = None
+            _SETS.folders = None
         with _signals_held(came):
             for path, tmp in list(pending.items()):
                 os.replace(tmp, path)
                 del pending[path]
+        done = True
     finally:
         _discard(pending.values())
+        if not done:   # the folders the set made for its products, when nothing else went into them
+            for f in sorted(folders, key=lambda f: len(f.parts), reverse=True):   # the deepest first
+                with contextlib.suppress(OSError):
+                    os.rmdir(f)
     if came:
         signal.raise_signal(came[0])
 

@@ -27,7 +27,7 @@ from calib.core.progress import Progress
 from calib.core.triad import PARAM_NAMES, TriadModel
 from calib.studies import stages
 from calib.core import seeds
-from calib.io.atomic import json_default, strict_json, write_text
+from calib.io.atomic import json_default, make_folder, strict_json, write_text
 from calib.sim import simulator as simulate
 
 #: how the DE variants of Liu 2021 map to the figures
@@ -149,9 +149,8 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     ``calibration.metrics.json``.
     """
     out = Path(out_dir)
-    (out / "runs").mkdir(parents=True, exist_ok=True)
-    (out / "tables").mkdir(exist_ok=True)
-    (out / "figures").mkdir(exist_ok=True)
+    for sub in ("runs", "tables", "figures"):
+        make_folder(out / sub)   # (inside an output set: removed again should the study end without its products)
     timing = {}
     t0 = time.perf_counter()
     ds = recording.load(recording_path)
