@@ -375,16 +375,14 @@ def _fieldcal_intervals(path):
 def _diagnose_refusal(path, settings, out_dir, exc):
     """A refused input is recorded as an 'inconclusive' report, but only in a folder without an earlier report:
     a failed run never replaces a previous report."""
-    from calib.diagnosis import DEFAULT_SETTINGS, inconclusive_report, report_markdown
-    from calib.io.atomic import write_json, write_text
+    from calib.diagnosis import DEFAULT_SETTINGS, inconclusive_report
+    from calib.diagnosis.run import write_report
 
     out = Path(out_dir)
     if (out / "report.json").exists() or (out / "report.md").exists():
         return
-    rep = inconclusive_report(path, {**DEFAULT_SETTINGS, **(settings or {})}, f"cannot read the recording: {exc}",
-                              "give a valid calib-recording-1 file")
-    write_json(rep, out / "report.json")
-    write_text(out / "report.md", report_markdown(rep))
+    write_report(inconclusive_report(path, {**DEFAULT_SETTINGS, **(settings or {})},
+                                     f"cannot read the recording: {exc}", "give a valid calib-recording-1 file"), out)
 
 
 # --------------------------------------------------------------------------- dispatch: one exit-code contract

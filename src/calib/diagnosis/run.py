@@ -53,10 +53,7 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
         if ds.attrs.get("segments_from"):
             rep["segments_from"] = str(ds.attrs["segments_from"])
         if out_dir is not None:
-            out_dir = Path(out_dir)
-            # the wall time stays out of the file, so that the same input gives the same report
-            write_json_atomic({k: v for k, v in rep.items() if k != "elapsed_s"}, out_dir / "report.json")
-            write_text_atomic(out_dir / "report.md", report_markdown(rep))
+            write_report(rep, out_dir)
     return rep, prob
 
 
@@ -108,7 +105,8 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
     if refusal is not None:
         if name is not None:
             refusal["recording"] = str(name)
-        _write_refusal(refusal, out_dir)
+        if out_dir is not None:
+            write_report(refusal, out_dir)
         return (refusal, None) if return_problem else refusal
     rep, prob = diagnose_dataset(ds, out_dir, st, path=path if name is None else name)
     return (rep, prob) if return_problem else rep
@@ -142,8 +140,10 @@ def load_for_diagnosis(path, settings=None, intervals=None, intervals_source: st
     return ds, None
 
 
-def _write_refusal(rep: dict, out_dir):
-    if out_dir is not None:
-        with output_set():
-            write_json_atomic(rep, Path(out_dir) / "report.json")
-            write_text_atomic(Path(out_dir) / "report.md", report_markdown(rep))
+def write_report(rep: dict, out_dir) -> None:
+    """``out_dir/report.json`` and ``report.md`` of ``rep``, one output set (the wall time stays out of the file, so
+    that the same input gives the same report)."""
+    out_dir = Path(out_dir)
+    with output_set():
+        write_json_atomic({k: v for k, v in rep.items() if k != "elapsed_s"}, out_dir / "report.json")
+        write_text_atomic(out_dir / "report.md", report_markdown(rep))

@@ -7,7 +7,7 @@ temporary file gets the permissions a plain ``open`` would give (``0o666`` less 
 of :func:`tempfile.mkstemp`.
 
 This is the one implementation: netCDF (:mod:`calib.io.netcdf`), figures (:mod:`calib.figures.output`),
-JSON, Markdown and CSV products all go through :func:`atomic_path` (or :func:`finish`). A command whose products
+JSON, Markdown and CSV products all go through :func:`atomic_path`. A command whose products
 belong together writes them in one :func:`output_set`: they then appear all at once, or none does.
 """
 from __future__ import annotations
@@ -74,7 +74,7 @@ def atomic_path(path, suffix: str = ".part", make_parents: bool = True):
         opened.add(tmp)
         yield tmp
         opened.discard(tmp)
-        finish(tmp, path)
+        _finish(tmp, path)
     except BaseException:
         opened.discard(tmp)
         _discard([tmp])
@@ -90,12 +90,12 @@ def make_folder(folder: Path) -> None:
         missing.append(f)
         f = f.parent
     folder.mkdir(parents=True, exist_ok=True)
-    made = getattr(_SETS, "folders", None)
-    if made is not None and _open_set() is not None:
+    made = getattr(_SETS, "folders", None)   # a list while an output set is open
+    if made is not None:
         made.extend(missing)
 
 
-def finish(tmp, path) -> None:
+def _finish(tmp, path) -> None:
     """The complete temporary file ``tmp`` becomes ``path``: now, or at the end of the open :func:`output_set` --
     but at once when ``path`` is itself the temporary file of an enclosing :func:`atomic_path` (a writer that
     writes atomically into another's temporary file: that one is then checked, e.g. :func:`calib.io.recording.write`
