@@ -188,3 +188,41 @@ def test_a_figure_started_early_is_the_one_drawn_at_the_end(tmp_path, monkeypatc
     assert (plain / "residuals_before_after.png").read_bytes() == (early / "residuals_before_after.png").read_bytes()
     same = (plain / "allan_deviation.png").read_bytes() == (early / "allan_deviation.png").read_bytes()
     assert same is not change
+
+
+@pytest.mark.parametrize("change", [False, True])
+def test_the_residual_figure_starts_once_the_final_model_is_chosen(tmp_path, monkeypatch, session, capsys, change):
+    """run.py hands the residual figure to the helper when analyse has chosen its final model, before the open
+    search beyond the library runs: drawn once, the bytes of a run without the helper; residuals that changed after
+    the hand-over (here in place: the very arrays handed over) are drawn again, from the new data."""
+    from calib.diagnosis import analysis
+
+    events = []
+    submit, search = helper.Helper.submit, analysis.open_search
+
+    def submit_and_note(self, jobs):
+        events.extend(("submit", args[0]) for name, args in jobs if name == "calib.figures.diagnosis:render")
+        return submit(self, jobs)
+
+    def note_and_search(prob, final):
+        events.append(("open search", None))
+        if change:
+            final.resid *= 1.5
+        return search(prob, final)
+
+    assert cli.main(["diagnose", str(session), "--out", str(tmp_path / "plain")]) in (0, 1, 3)
+    monkeypatch.setattr(analysis, "open_search", note_and_search)
+    monkeypatch.setenv(helper.ENV, "off")
+    assert cli.main(["diagnose", str(session), "--out", str(tmp_path / "alone")]) in (0, 1, 3)
+    monkeypatch.delenv(helper.ENV)
+    monkeypatch.setattr(helper.Helper, "submit", submit_and_note)
+    events.clear()
+    assert cli.main(["diagnose", str(session), "--out", str(tmp_path / "early")]) in (0, 1, 3)
+    capsys.readouterr()
+    residual = [i for i, e in enumerate(events) if e == ("submit", "residual")]
+    assert residual and residual[0] < events.index(("open search", None)), events
+    if not change:
+        assert len(residual) == 1, events
+    plain, alone, early = (tmp_path / d / "residuals_before_after.png" for d in ("plain", "alone", "early"))
+    assert early.read_bytes() == alone.read_bytes()
+    assert (early.read_bytes() == plain.read_bytes()) is not change

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import copy
 import math
 import sys
 from pathlib import Path
@@ -215,20 +216,24 @@ def _figure_jobs(prob: Problem, fits):
             ("allan_deviation.png", "allan", allan_data(prob))]
 
 
-def start_figures(prob: Problem, out_dir, st) -> None:
-    """Hand the figure known before the analysis -- the Allan deviation of the noise fit -- to the command's
-    helper process now (:mod:`calib.core.helper`), so that it is drawn while the analysis runs;
-    :func:`write_figures` collects it (and draws it again should its data have changed since). Nothing without a
-    helper, an output folder or figures. For the caller of :func:`build_report`, right after the set-up."""
+def start_figures(prob: Problem, out_dir, st, fits=None) -> None:
+    """Hand a figure to the command's helper process (:mod:`calib.core.helper`) as soon as its data are known, so
+    that it is drawn while the rest of the diagnosis runs: the Allan deviation once the noise is fitted (``fits``
+    None: right after the set-up), the residuals once the final model is chosen (``fits`` = (base, final): before the
+    open search, the rival forms and the absent bounds). :func:`write_figures` collects them, and draws one again
+    should its data have changed since (they are compared with a copy taken here). Nothing without a helper, an
+    output folder or figures."""
     from calib.core import helper
 
     h = helper.current()
     if h is None or out_dir is None or not st.get("figures", True):
         return
-    data = allan_data(prob)
+    name, kind, data = (("allan_deviation.png", "allan", allan_data(prob)) if fits is None else
+                        next(j for j in _figure_jobs(prob, fits) if j[1] == "residual"))
+    early = dict(getattr(prob, "early_figures", None) or {})
     with contextlib.suppress(helper.HelperError):
-        prob.early_figures = {"allan_deviation.png": (data, h.submit([("calib.figures.diagnosis:render",
-                                                                       ("allan", data))]))}
+        early[name] = (copy.deepcopy(data), h.submit([("calib.figures.diagnosis:render", (kind, data))]))
+    prob.early_figures = early
 
 
 def _same_data(a, b) -> bool:

@@ -72,7 +72,7 @@ def _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from=None):
             raise DiagnosisInputError(f"the base calibration failed: its design has rank {rank} of "
                                       f"{prob.X0.shape[1]} (the positions do not determine every parameter)",
                                       "add static positions that point each axis up and down")
-        res = analyse(prob)
+        res = analyse(prob, on_final=lambda fits: start_figures(prob, out_dir, st, fits))
         prob.last_fits = res["_fits"]
         if not np.isfinite(res["goodness_of_fit"]["before"]["chi2"]):
             raise DiagnosisInputError("the base calibration failed: non-finite chi-square")
