@@ -74,10 +74,10 @@ def test_each_input_is_read_once_with_the_same_report(tmp_path, capsys, monkeypa
     log = tmp_path / "reads.txt"   # a file: the checks may run in the command's helper process
     body = recording._validate_body
 
-    def counting(path, h):
+    def counting(path, h, *rest):
         with open(log, "a") as fh:
             fh.write(f"{Path(path).resolve()}\n")
-        return body(path, h)
+        return body(path, h, *rest)
 
     def reads():
         return log.read_text().split() if log.exists() else []

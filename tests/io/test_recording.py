@@ -205,9 +205,9 @@ def counted(monkeypatch):
     calls = []
     body = recording._validate_body
 
-    def counting(path, h):
+    def counting(path, h, *rest):
         calls.append(str(path))
-        return body(path, h)
+        return body(path, h, *rest)
 
     monkeypatch.setattr(recording, "_validate_body", counting)
     return calls

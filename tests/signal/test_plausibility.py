@@ -46,3 +46,55 @@ def test_gyro_bias_limit_in_deg_s():
 def test_earth_rate_constant():
     assert pl.EARTH_RATE_DEG_H == pytest.approx(15.041, abs=1e-3)
     assert pl.ACCEL_BIAS_MAX_M_S2 == pytest.approx(0.2 * earth.STANDARD_GRAVITY, rel=0.02)
+
+
+def test_block_statistics_are_the_plain_definitions():
+    """The block means and scatter (norm of the per-axis standard deviation) of _Blocks, which sums axes-first for
+    speed, against numpy's plain definitions on samples laid out as recorded; the samples after a chunk's last
+    whole block are left out, a NaN spoils only its block."""
+    rng = np.random.default_rng(5)
+    w = 50
+    chunks = [rng.normal([0.1, -0.2, 9.8], [1e-3, 2e-3, 3e-3], (n, 3)) for n in (1000, 777, 49)]
+    chunks[1][300, 2] = np.nan
+    blocks = pl._Blocks(w)
+    means, sds = [], []
+    for x in chunks:
+        blocks.add(pl._axes_first(x, 1.0))
+        k = len(x) // w * w
+        b = x[:k].reshape(-1, w, 3)
+        means.append(b.mean(axis=1))
+        sds.append(np.linalg.norm(b.std(axis=1), axis=1))
+    m, sd = blocks.arrays()
+    assert m.shape == (20 + 15, 3) and sd.shape == (35,)
+    np.testing.assert_allclose(m, np.concatenate(means), rtol=1e-14)
+    np.testing.assert_allclose(sd, np.concatenate(sds), rtol=1e-12)
+    assert np.isnan(sd[20 + 6]) and np.isfinite(np.delete(sd, 26)).all()
+    np.testing.assert_allclose(pl._magnitude(pl._axes_first(chunks[0], 2.0)), 2.0 * np.linalg.norm(chunks[0], axis=1),
+                               rtol=1e-15)
+
+
+def test_a_check_fed_chunk_by_chunk_is_the_check_of_the_file(tmp_path):
+    """RecordingCheck fed the samples chunk by chunk (here 7000 samples a chunk, whole blocks as the file's reader
+    gives them) judges as check_recording reading the file itself; a spike named by its index."""
+    from calib.io import recording
+
+    rng = np.random.default_rng(8)
+    n, fs = 30_000, 100.0
+    gyr = rng.normal(0, 1e-4, (n, 3)) + np.radians(15.04 / 3600) * np.array([0.0, 0.6, 0.8])
+    acc = rng.normal(0, 1e-2, (n, 3)) + [0.0, 0.0, 9.79]
+    acc[12_345] = [0.0, 0.0, 2e4]                                          # a spike of ~2000 g
+    ds = recording.make_dataset(acc, gyr, sample_rate_hz=fs, latitude_deg=30.0, accel_units="m s-2",
+                                gyro_units="rad s-1", source="synthetic")
+    path = recording.write(ds, tmp_path / "r.nc")
+    h = recording.read_header(path)
+    whole = pl.check_recording(path, h, force=True)
+    check = pl.RecordingCheck(path, h, force=True)
+    for i0, a, g in recording.iter_raw_chunks(path, h, chunk=7_000):
+        check.add(i0, a, g)
+    fed = check.finish()
+    assert check.n_seen == n
+    assert any("sample 12345" in w for w in whole.warnings), whole.warnings
+    assert fed.warnings == whole.warnings
+    assert fed.n_quiet_blocks == whole.n_quiet_blocks == n // 100 - 1       # the spike's block is not quiet
+    assert fed.accel_static_norm == pytest.approx(9.79, rel=1e-3)
+    assert fed.gyro_static_deg_h == pytest.approx(whole.gyro_static_deg_h, rel=1e-12)

@@ -103,14 +103,24 @@ def _config(path):
 
 def _recording(path, force=False, what="recording"):
     """Format check (calib.io.recording.validate) and physical plausibility of a recording before any fit."""
-    from calib.io import recording
-    from calib.signal import plausibility
-
-    h = recording.validate(input_file(path, what))
-    pl = plausibility.check_recording(path, h, force=force)
+    h, pl = _check_recording(path, force, what)
     for w in pl.warnings:
         print(f"warning: {w}", file=sys.stderr)
     return h, pl
+
+
+def _check_recording(path, force, what):
+    """``(header, plausibility)`` of a recording: its format and every sample checked (calib.io.recording.validate),
+    its magnitudes judged (calib.signal.plausibility) on the samples of the same read; a refusal raises."""
+    from calib.io import recording
+    from calib.signal import plausibility
+
+    f = input_file(path, what)
+    check = plausibility.RecordingCheck(path, recording.read_header(f), force=force)
+    h = recording.validate(f, on_chunk=check.add)
+    if check.n_seen != h.n_samples:   # known as validated already (no samples passed on): read for the judgement
+        return h, plausibility.check_recording(path, h, force=force)
+    return h, check.finish()
 
 
 def _positive(value, option):
@@ -247,8 +257,11 @@ def cmd_navigate(a):
     _positive(a.output_interval, "--output-interval")
     if a.calibration:
         plausibility.check_calibration_file(input_file(a.calibration, "calibration file"))
-    _recording(a.recording, a.force)
     _output_file(a.out, "navigation output")
+    # what needs no sample first: a wrong pairing of units and calibration is named at once, not after the check of
+    # every sample of a long recording (4-5 s for 240 h at 100 Hz)
+    navigation_study.check_navigation_inputs(input_file(a.recording, "recording"), a.calibration)
+    _recording(a.recording, a.force)
     nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
     navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs")
     emit(f"wrote {a.out}")
@@ -325,11 +338,10 @@ def _input_check(path, force, what):
     """What :func:`_recording` checks, run in the helper process: ``(identity of the file before the check, its
     header, the plausibility warnings)``; a refusal raises."""
     from calib.io import recording
-    from calib.signal import plausibility
 
     key = recording.identity(path)
-    h = recording.validate(input_file(path, what))
-    return key, h, list(plausibility.check_recording(path, h, force=force).warnings)
+    h, pl = _check_recording(path, force, what)
+    return key, h, list(pl.warnings)
 
 
 def _checked_input(path, force, what, h=None, job=None):

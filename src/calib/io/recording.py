@@ -311,6 +311,9 @@ def _header(path, nc) -> Header:
 
 
 def _check_finite(path, name, arr, offset=0):
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(np.add.reduce(arr, axis=None)):   # no NaN or Inf can hide in a finite sum: the cheap test
+            return
     bad = ~np.isfinite(arr)
     if bad.any():
         i = int(np.argmax(bad.reshape(len(arr), -1).any(axis=1)))
@@ -381,9 +384,11 @@ def remember_validated(key, header: Header) -> None:
         _VALIDATED[key] = dataclasses.replace(header, attrs=dict(header.attrs))
 
 
-def validate(path) -> Header:
+def validate(path, on_chunk=None) -> Header:
     """Full check of a recording: header (time coordinate included), segment table and every sample (read
-    in chunks: NaN/Inf and masked / _FillValue samples are refused with their index)."""
+    in chunks: NaN/Inf and masked / _FillValue samples are refused with their index). ``on_chunk(first_index,
+    accel, gyro)``: called with each chunk of raw samples once it passed, so that a further check of the samples
+    needs no second read (not called when the file is known as validated: :func:`reuse_validation`)."""
     memo = _VALIDATED
     key = identity(path) if memo is not None else None   # taken before the check: a file changed since misses
     if key is not None and key in memo:
@@ -391,9 +396,11 @@ def validate(path) -> Header:
         return dataclasses.replace(h, attrs=dict(h.attrs))
     h = read_header(path)
     try:
-        _validate_body(path, h)
+        _validate_body(path, h, on_chunk)
     except RecordingError:
         raise
+    except _OnChunkError as exc:
+        raise exc.__cause__ from None
     except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
         raise _unreadable(path, exc) from exc
     if key is not None:
@@ -401,7 +408,11 @@ def validate(path) -> Header:
     return h
 
 
-def _validate_body(path, h: Header) -> None:
+class _OnChunkError(Exception):
+    """An exception of a validation's ``on_chunk``, carried out of the checks that name a failure the file's."""
+
+
+def _validate_body(path, h: Header, on_chunk=None) -> None:
     with xr.open_dataset(path, engine="netcdf4") as ds:
         if "segment_index" in ds:
             si = ds["segment_index"]
@@ -436,6 +447,11 @@ def _validate_body(path, h: Header) -> None:
         _check_finite(path, "gyro", gyr, start)
         _check_fill(path, "accel", acc, fills["accel"], start)
         _check_fill(path, "gyro", gyr, fills["gyro"], start)
+        if on_chunk is not None:
+            try:
+                on_chunk(start, acc, gyr)
+            except Exception as exc:  # noqa: BLE001 - not the file's fault: validate raises it as itself
+                raise _OnChunkError() from exc
 
 
 def iter_raw_chunks(path, header: Header | None = None, chunk: int = 1_000_000, start: int = 0, stop=None):

@@ -110,12 +110,14 @@ def check_units(header: recording.Header, calibration) -> None:
         is_count = recording.unit_factor(units) is None
         if is_count and calibration is None:
             raise RecordingError(header.path, sensor, f"units {units!r} are raw counts and no calibration was given",
-                                 "pass calibration=TriadCalibration(accel_model, gyro_model) (or any object with "
-                                 "apply_accel/apply_gyro)")
+                                 "give the unit's calibration: calib navigate --calibration default_calibration.nc "
+                                 "(written by calib calibrate); in Python calibration=TriadCalibration(accel_model, "
+                                 "gyro_model) or any object with apply_accel/apply_gyro")
         if not is_count and calibration is not None:
             raise RecordingError(header.path, sensor, f"units {units!r} are physical but a count calibration was "
                                  f"given (expects {getattr(calibration, 'raw_units', '?')!r})",
-                                 "pass calibration=None for physical-unit recordings")
+                                 "leave the calibration out for a recording in physical units (calib navigate "
+                                 "without --calibration; in Python calibration=None)")
     if calibration is not None:
         if not (hasattr(calibration, "apply_accel") and hasattr(calibration, "apply_gyro")):
             raise TypeError("calibration must provide apply_accel(raw_rate) and apply_gyro(raw_rate)")

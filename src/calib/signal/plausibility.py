@@ -97,19 +97,24 @@ def _raw_rate_factor(h, sensor):
 
 
 class _Blocks:
-    """Means and scatter of consecutive blocks of ``w`` samples, accumulated chunk by chunk."""
+    """Means and scatter of consecutive blocks of ``w`` samples, accumulated chunk by chunk (the samples after a
+    chunk's last whole block are left out)."""
 
     def __init__(self, w):
         self.w = w
         self.mean, self.sd = [], []
 
-    def add(self, x):
-        k = (len(x) // self.w) * self.w
-        if k == 0:
+    def add(self, t):
+        """``t``: one chunk, axes first (3, n), contiguous; overwritten (the block means are subtracted)."""
+        nb = t.shape[1] // self.w
+        if nb == 0:
             return
-        b = x[:k].reshape(-1, self.w, 3)
-        self.mean.append(b.mean(axis=1))
-        self.sd.append(np.linalg.norm(b.std(axis=1), axis=1))
+        b = (t if nb * self.w == t.shape[1] else t[:, :nb * self.w]).reshape(3, nb, self.w)
+        m = b.sum(axis=2) / self.w                        # (3, nb): contiguous inner sums, not strided ones
+        b -= m[:, :, None]
+        var = np.einsum("abi,abi->ab", b, b) / self.w     # per axis; the block's scatter is the norm of its std
+        self.mean.append(m.T)
+        self.sd.append(np.sqrt(var.sum(axis=0)))
 
     def arrays(self):
         if not self.mean:
@@ -117,36 +122,77 @@ class _Blocks:
         return np.concatenate(self.mean), np.concatenate(self.sd)
 
 
+def _axes_first(x, factor) -> np.ndarray:
+    """``x * factor`` of one chunk (n, 3), axes first: (3, n), contiguous (the sums over samples then run along
+    memory: ~8x faster than over a strided axis of three)."""
+    t = np.empty((3, len(x)))
+    np.multiply(x.T, factor, out=t)
+    return t
+
+
+def _magnitude(t) -> np.ndarray:
+    """Per sample, the norm of an axes-first chunk (3, n)."""
+    return np.sqrt(np.einsum("ij,ij->j", t, t))
+
+
+class RecordingCheck:
+    """The plausibility check of one recording, fed its samples chunk by chunk (:meth:`add`, in order, each sample
+    once) and judged at the end (:meth:`finish`): so that the pass that validates the samples
+    (:func:`calib.io.recording.validate`) can feed it, and the file is read once. :func:`check_recording` reads it
+    itself."""
+
+    def __init__(self, path, header, *, force: bool = False):
+        h = self.h = header
+        self.path, self.force = path, force
+        self.fa, self.fg = _per_sample_factor(h, "accel"), _per_sample_factor(h, "gyro")
+        self.ra = _raw_rate_factor(h, "accel")
+        self.w = max(8, int(round(h.sample_rate_hz * BLOCK_S)))
+        self.blocks_a, self.blocks_g = _Blocks(self.w), _Blocks(self.w)
+        self.absurd = {"accel": _Absurd(ABSURD_ACCEL_G, "g", h.accel_units),
+                       "gyro": _Absurd(ABSURD_GYRO_DEG_S, "deg/s", h.gyro_units)}
+        self.integer_accel = True
+        self.n_seen = 0
+
+    def add(self, i0, acc, gyr) -> None:
+        """Samples ``i0 ..`` of the raw accel and gyro (n, 3) in the declared units."""
+        with np.errstate(over="ignore", invalid="ignore"):   # overflowing samples are absurd samples, judged later
+            a = _axes_first(acc, self.fa if self.fa is not None else self.ra)
+            g = _axes_first(gyr, self.fg if self.fg is not None else 1.0)
+            if self.fa is not None:
+                self.absurd["accel"].add(_magnitude(a) / earth.STANDARD_GRAVITY, i0)
+            if self.fg is not None:
+                self.absurd["gyro"].add(_magnitude(g) / earth.DEG, i0)
+            self.integer_accel = self.integer_accel and bool(np.all(acc == np.round(acc)))
+            self.blocks_a.add(a)
+            self.blocks_g.add(g)
+        self.n_seen += len(acc)
+
+    def finish(self) -> Plausibility:
+        """The judgement on every sample added (:func:`check_recording`)."""
+        return _judge(self)
+
+
 def check_recording(path, header=None, *, force: bool = False) -> Plausibility:
     """Refuse (:class:`calib.core.errors.InputError`, exit 2) a recording whose samples are implausible for
     its declared units; ``force``: record the refusals in ``warnings`` instead. One pass over the samples; the
     static magnitudes are judged first, so that a unit mistake is named as such rather than as spikes."""
     h = header or recording.read_header(path)
+    check = RecordingCheck(path, h, force=force)
+    for i0, acc, gyr in recording.iter_raw_chunks(path, h):
+        check.add(i0, acc, gyr)
+    return check.finish()
+
+
+def _judge(c: RecordingCheck) -> Plausibility:
+    path, h, fa, fg, ra, w, absurd = c.path, c.h, c.fa, c.fg, c.ra, c.w, c.absurd
     res = Plausibility(str(path), accel_units=h.accel_units)
 
     def refuse(field_, message, fix):
-        if not force:
+        if not c.force:
             raise InputError(message, file=path, field=field_, fix=fix)
         res.warnings.append(f"{path}: {field_}: {message}")
 
-    fa, fg = _per_sample_factor(h, "accel"), _per_sample_factor(h, "gyro")
-    ra = _raw_rate_factor(h, "accel")
-    w = max(8, int(round(h.sample_rate_hz * BLOCK_S)))
-    blocks_a, blocks_g = _Blocks(w), _Blocks(w)
-    absurd = {"accel": _Absurd(ABSURD_ACCEL_G, "g", h.accel_units), "gyro": _Absurd(ABSURD_GYRO_DEG_S, "deg/s",
-                                                                                     h.gyro_units)}
-    integer_accel = True
-    with np.errstate(over="ignore", invalid="ignore"):   # overflowing samples are absurd samples, judged below
-        for i0, acc, gyr in recording.iter_raw_chunks(path, h):
-            a = acc * fa if fa is not None else acc * ra
-            g = gyr * fg if fg is not None else gyr
-            if fa is not None:
-                absurd["accel"].add(np.linalg.norm(a, axis=1) / earth.STANDARD_GRAVITY, i0)
-            if fg is not None:
-                absurd["gyro"].add(np.linalg.norm(g, axis=1) / earth.DEG, i0)
-            integer_accel = integer_accel and bool(np.all(acc == np.round(acc)))
-            blocks_a.add(a)
-            blocks_g.add(g)
+    blocks_a, blocks_g, integer_accel = c.blocks_a, c.blocks_g, c.integer_accel
     am, asd = blocks_a.arrays()
     gm, gsd = blocks_g.arrays()
     quiet = np.zeros(len(am), dtype=bool)

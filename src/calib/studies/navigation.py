@@ -111,6 +111,13 @@ def load_calibration(nc_path):
                                            TriadModel.from_vector(d["gyro"].values, "deg h-1", "count s-1"))
 
 
+def check_navigation_inputs(recording_path, calibration_nc) -> None:
+    """What can be refused before a sample is read: the recording's units against the calibration given (raw counts
+    need one, physical units take none; :func:`calib.nav.navigation.check_units`). ``calib navigate`` asks this
+    first: a wrong pairing is named at once, not after the full check of a long recording's samples."""
+    navigation.check_units(read_header(recording_path), load_calibration(calibration_nc) if calibration_nc else None)
+
+
 def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print):
     """Navigate one recording (streamed, progress in the log) and write the labelled error dataset."""
 
