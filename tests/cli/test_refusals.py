@@ -573,3 +573,48 @@ def test_the_samples_are_read_once_for_the_format_and_the_plausibility_checks(tm
         del reads[:]
         cli._check_recording(rec, False, "recording")
     assert len(reads) == 1
+
+
+@pytest.mark.parametrize("helper_on", ["on", "off"])
+def test_navigate_checks_every_sample_beside_the_navigation_and_its_refusal_wins(tmp_path, capsys, monkeypatch,
+                                                                                 helper_on):
+    """`calib navigate` checks every sample in its helper process while it navigates (or first, without a helper):
+    a clean recording is navigated with its check done in the helper; a masked sample is refused by its index (exit
+    2) although the navigation ran, and nothing replaces the earlier output."""
+    import os
+
+    from calib.core import helper
+
+    clean = tmp_path / "clean.nc"
+    assert cli.main(["simulate", "navigation", str(clean), "--config", str(ROOT / ".test" / "config.yaml"),
+                     "--hours", "0.005"]) == 0
+    ds = recording.load(clean)
+    ds["accel"].values[77, 1] = np.nan
+    ds["accel"].encoding["_FillValue"] = -9999.0
+    masked = write_netcdf(ds, tmp_path / "masked.nc")
+    monkeypatch.setenv(helper.ENV, helper_on)
+    checks = tmp_path / "checks.txt"
+    check = cli._input_check
+
+    def noted(*args):
+        with open(checks, "a") as fh:
+            fh.write(f"{os.getpid()}\n")
+        return check(*args)
+
+    monkeypatch.setattr(cli, "_input_check", noted)
+    capsys.readouterr()
+    code, err = run(capsys, "navigate", clean, "--out", tmp_path / "nav.nc", "--output-interval", "1")
+    assert code == 0 and (tmp_path / "nav.nc").exists(), err
+    pids = checks.read_text().split() if checks.exists() else []
+    assert (pids != [] and str(os.getpid()) not in pids) if helper_on == "on" else pids == [], pids
+    out = tmp_path / "earlier.nc"
+    out.write_bytes(b"earlier output")
+    code, err = run(capsys, "navigate", masked, "--out", out, "--output-interval", "1")
+    assert code == 2 and "masked sample (_FillValue -9999) at sample 77" in err, err
+    assert out.read_bytes() == b"earlier output" and leftovers(tmp_path) == []
+
+
+def test_no_recorded_attitude_is_refused_with_the_command_s_option(tmp_path, capsys, static_rates):
+    acc, gyr = static_rates
+    code, err = run(capsys, "navigate", physical(tmp_path, "r.nc", acc, gyr), "--out", tmp_path / "nav.nc")
+    assert code == 2 and "no initial attitude" in err and "calib navigate --align" in err, err

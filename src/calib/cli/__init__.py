@@ -250,6 +250,8 @@ def cmd_fieldcal(a):
 
 
 def cmd_navigate(a):
+    from calib.core import helper
+    from calib.io import recording
     from calib.signal import plausibility
     from calib.studies import navigation as navigation_study
 
@@ -261,9 +263,25 @@ def cmd_navigate(a):
     # what needs no sample first: a wrong pairing of units and calibration is named at once, not after the check of
     # every sample of a long recording (4-5 s for 240 h at 100 Hz)
     navigation_study.check_navigation_inputs(input_file(a.recording, "recording"), a.calibration)
-    _recording(a.recording, a.force)
     nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
-    navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs")
+    # every sample is checked beside the navigation, by the command's helper process (the second core); the result
+    # is written only once that check passed, and its refusal comes before anything the navigation raised
+    with recording.reuse_validation(), helper.running() as h:
+        job = h.submit([("calib.cli:_input_check", (a.recording, a.force, "recording"))]) if h is not None else None
+        if job is None:
+            _recording(a.recording, a.force)
+        pending = [job] if job is not None else []
+
+        def checked():
+            while pending:
+                _checked_input(a.recording, a.force, "recording", h, pending.pop())
+
+        try:
+            navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs",
+                                           inputs_checked=checked)
+        except Exception:
+            checked()   # the input's refusal names the cause of whatever the navigation raised
+            raise
     emit(f"wrote {a.out}")
 
 

@@ -359,7 +359,9 @@ def resolve_init(path, header: recording.Header, init, calibration=None, align_w
     elif init is None or init == "attrs":
         if true_att is None:
             raise RecordingError(path, "attitude_pitch_deg", "no initial attitude in the recording attributes",
-                                 "give init={'pitch_deg':..,'roll_deg':..,'yaw_deg':..} or init='align'")
+                                 "self-align on the first static minutes (calib navigate --align; in Python "
+                                 "init='align'), or give the attitude (init={'pitch_deg':..,'roll_deg':..,"
+                                 "'yaw_deg':..})")
         start = NavInit(lat=lat, lon=lon, h=h, pitch=true_att[0], roll=true_att[1], yaw=true_att[2])
     elif init == "align":
         n = int(round(align_window_s * header.sample_rate_hz))

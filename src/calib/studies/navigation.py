@@ -118,13 +118,19 @@ def check_navigation_inputs(recording_path, calibration_nc) -> None:
     navigation.check_units(read_header(recording_path), load_calibration(calibration_nc) if calibration_nc else None)
 
 
-def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print):
-    """Navigate one recording (streamed, progress in the log) and write the labelled error dataset."""
+def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print,
+                  inputs_checked=None):
+    """Navigate one recording (streamed, progress in the log) and write the labelled error dataset.
+    ``inputs_checked()``: called once the navigation is done, before its result is judged or written (``calib
+    navigate`` checks every sample of the recording beside the navigation and collects that check there: a refusal
+    of it raises and nothing is written)."""
 
     cal = load_calibration(calibration_nc) if calibration_nc else None
     bar = Progress(read_header(recording_path).n_samples, f"navigating {Path(recording_path).name}")
     ds = navigation.navigate_recording(recording_path, calibration=cal, init=init, nav_rate_hz=nav["nav_rate_hz"],
                                        output_interval_s=nav["output_interval_s"], progress=lambda d, n: bar(d))
+    if inputs_checked is not None:
+        inputs_checked()
     # a non-finite solution is refused (exit 3) before it could replace an earlier output
     plausibility.check_finite_result(ds, out_nc, "check the calibration and the recording's units; the navigation "
                                      "rate is navigation.nav_rate_hz (calib navigate --nav-rate)")
