@@ -45,7 +45,10 @@ def test_parallel_in_memory_equals_serial_file_path(tmp_path, ccfg):
     assert mem[1] == ref[1] and par[1] == ref[1]  # the metrics (full float repr), byte for byte
     z = json.loads(ref[1])["z"]
     assert len(z) == 9 + 12 and all(np.isfinite(v["mean_z"]) for v in z.values())
-    assert not list((tmp_path / "files" / "work").iterdir())  # the reference path leaves no recording behind
+    # no scratch folder is left behind: the reference path removes its recordings and their folder, the in-memory
+    # path makes none (an empty tmp_zscores stayed in the study's results/calibration)
+    assert not (tmp_path / "files" / "work").exists() and not (tmp_path / "memory" / "work").exists()
+    assert not (tmp_path / "parallel" / "work").exists()
 
 
 def test_parallel_equals_serial_without_noise_record(tmp_path, ccfg):

@@ -6,6 +6,7 @@ Scientific products (netCDF, CSV, figures) never hold wall times; those go to ``
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing as mp
 import time
@@ -607,7 +608,9 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
     if mode not in ("none", "per_seed", "shared"):
         raise ValueError(f"calibration.z_noise_record: {mode!r}; use per_seed or shared")
     workdir = Path(workdir)
-    workdir.mkdir(parents=True, exist_ok=True)
+    made = files and not workdir.exists()   # a scratch folder for the file path only, removed again at the end
+    if files:
+        workdir.mkdir(parents=True, exist_ok=True)
     shared = recording.load(noise_record) if mode == "shared" else None
     z = {"with": {"accel": [], "gyro": []}, "segment": {"accel": [], "gyro": []}}
     names = {}
@@ -635,6 +638,9 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
                 ex.shutdown(cancel_futures=True)
     finally:
         _Z.clear()
+        if made:
+            with contextlib.suppress(OSError):   # empty unless a seed failed: then its files stay for a look
+                workdir.rmdir()
     main = "with" if mode != "none" else "segment"
     header = "sensor,parameter,mean_z,std_z,n_seeds" + (",mean_z_segment_sigma,std_z_segment_sigma" if main == "with"
                                                         else "")
