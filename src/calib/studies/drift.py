@@ -4,6 +4,7 @@ Called by the workflow rules ``drift_pso`` and ``drift_validation`` and by ``cal
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
@@ -354,7 +355,17 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
     """
 
     workdir = Path(workdir)
+    made = not workdir.exists()   # a scratch folder for one seed's file at a time, removed again at the end
     workdir.mkdir(parents=True, exist_ok=True)
+    try:
+        return _noise_seeds(out_nc, out_csv, fig, metrics_path, session, site, dcfg, n_seeds, seed0, workdir, prov, log)
+    finally:
+        if made:
+            with contextlib.suppress(OSError):
+                workdir.rmdir()
+
+
+def _noise_seeds(out_nc, out_csv, fig, metrics_path, session, site, dcfg, n_seeds, seed0, workdir, prov, log):
     truth = np.asarray(session["gyro_drift_deg_h"], float)
     att = attitude_rad(session["attitude_deg"])
     arw, white = noise_psd(session)
@@ -367,9 +378,11 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
                                                                  "height_m": site.get("height_m", 0.0)})
     for k in range(n_seeds):
         path = workdir / f"seed{k}.nc"
-        simulate.simulate_static_session(cfg, seeds.child_seed(seed0, "session", k), path)
-        win = drift.load_window(path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
-        path.unlink()
+        try:
+            simulate.simulate_static_session(cfg, seeds.child_seed(seed0, "session", k), path)
+            win = drift.load_window(path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
+        finally:   # also when interrupted: no seed file is left behind
+            path.unlink(missing_ok=True)
         cost = drift.NavigationCost(win, dcfg["output_interval_s"], dcfg["weights"], dcfg["position_unit"])
         e, se, _ = drift.kalman_baseline(cost, arw, cond, True, white, 1.0 / win.sample_rate_hz)
         est["kalman"][k] = e
