@@ -50,32 +50,30 @@ def test_earth_rate_constant():
 
 def test_block_statistics_are_the_plain_definitions():
     """The block means and scatter (norm of the per-axis standard deviation) of _Blocks, which sums axes-first for
-    speed, against numpy's plain definitions on samples laid out as recorded; the samples after a chunk's last
-    whole block are left out, a NaN spoils only its block."""
+    speed and is fed chunk by chunk, against numpy's plain definitions on the whole record laid out as recorded: the
+    blocks are the record's ([0, w), [w, 2w), ...) whatever the chunks' lengths, its last incomplete block is left
+    out, a NaN spoils only its own block."""
     rng = np.random.default_rng(5)
     w = 50
-    chunks = [rng.normal([0.1, -0.2, 9.8], [1e-3, 2e-3, 3e-3], (n, 3)) for n in (1000, 777, 49)]
-    chunks[1][300, 2] = np.nan
+    chunks = [rng.normal([0.1, -0.2, 9.8], [1e-3, 2e-3, 3e-3], (n, 3)) for n in (1000, 777, 49, 1)]
+    chunks[1][300, 2] = np.nan                              # sample 1300 of the record: block 26
     blocks = pl._Blocks(w)
-    means, sds = [], []
     for x in chunks:
         blocks.add(pl._axes_first(x, 1.0))
-        k = len(x) // w * w
-        b = x[:k].reshape(-1, w, 3)
-        means.append(b.mean(axis=1))
-        sds.append(np.linalg.norm(b.std(axis=1), axis=1))
     m, sd = blocks.arrays()
-    assert m.shape == (20 + 15, 3) and sd.shape == (35,)
-    np.testing.assert_allclose(m, np.concatenate(means), rtol=1e-14)
-    np.testing.assert_allclose(sd, np.concatenate(sds), rtol=1e-12)
-    assert np.isnan(sd[20 + 6]) and np.isfinite(np.delete(sd, 26)).all()
-    np.testing.assert_allclose(pl._magnitude(pl._axes_first(chunks[0], 2.0)), 2.0 * np.linalg.norm(chunks[0], axis=1),
-                               rtol=1e-15)
+    x = np.concatenate(chunks)
+    b = x[:len(x) // w * w].reshape(-1, w, 3)
+    assert m.shape == (36, 3) and sd.shape == (36,) and len(x) == 1827
+    np.testing.assert_allclose(m, b.mean(axis=1), rtol=1e-14)
+    np.testing.assert_allclose(sd, np.linalg.norm(b.std(axis=1), axis=1), rtol=1e-12)
+    assert np.isnan(sd[26]) and np.isfinite(np.delete(sd, 26)).all()
+    np.testing.assert_allclose(np.sqrt(pl._squared_magnitude(pl._axes_first(chunks[0], 2.0))),
+                               2.0 * np.linalg.norm(chunks[0], axis=1), rtol=1e-15)
 
 
 def test_a_check_fed_chunk_by_chunk_is_the_check_of_the_file(tmp_path):
-    """RecordingCheck fed the samples chunk by chunk (here 7000 samples a chunk, whole blocks as the file's reader
-    gives them) judges as check_recording reading the file itself; a spike named by its index."""
+    """RecordingCheck fed the samples chunk by chunk (here 7001 samples a chunk: no whole number of blocks) judges
+    as check_recording reading the file itself; a spike named by its index."""
     from calib.io import recording
 
     rng = np.random.default_rng(8)
@@ -89,7 +87,7 @@ def test_a_check_fed_chunk_by_chunk_is_the_check_of_the_file(tmp_path):
     h = recording.read_header(path)
     whole = pl.check_recording(path, h, force=True)
     check = pl.RecordingCheck(path, h, force=True)
-    for i0, a, g in recording.iter_raw_chunks(path, h, chunk=7_000):
+    for i0, a, g in recording.iter_raw_chunks(path, h, chunk=7_001):
         check.add(i0, a, g)
     fed = check.finish()
     assert check.n_seen == n

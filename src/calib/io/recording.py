@@ -454,16 +454,51 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
                 raise _OnChunkError() from exc
 
 
+def slice_bounds(n_time_chunk: int | None, start: int, stop: int, target: int) -> list[tuple[int, int]]:
+    """``[(i0, i1), ...]`` covering ``[start, stop)``: every boundary inside the range on a multiple of the
+    file's chunk length ``n_time_chunk`` (None: contiguous storage, any boundary), slices of about ``target``
+    samples (a whole number of chunks, at least one)."""
+    target = max(int(target), 1)
+    if n_time_chunk and n_time_chunk > 0:
+        step = max(1, int(round(target / n_time_chunk))) * n_time_chunk
+    else:
+        step = target
+    out = []
+    i0 = start
+    while i0 < stop:
+        i1 = min(stop, (i0 // step + 1) * step)  # next multiple of step: aligned from the second slice on
+        out.append((i0, i1))
+        i0 = i1
+    return out
+
+
+def time_chunk(var) -> int | None:
+    """The chunk length along ``time`` of a netCDF variable (None: contiguous storage)."""
+    ch = var.chunking()
+    return None if ch == "contiguous" or ch is None else int(ch[0])
+
+
 def iter_raw_chunks(path, header: Header | None = None, chunk: int = 1_000_000, start: int = 0, stop=None):
-    """Yield ``(first_sample_index, accel, gyro)`` raw float64 arrays of at most ``chunk`` samples."""
+    """Yield ``(first_sample_index, accel, gyro)`` raw float64 arrays (n, 3) of ``[start, stop)`` in order, in
+    slices of about ``chunk`` samples made of whole chunks of the file (:func:`slice_bounds`): every chunk of the
+    file is read once, by one read, straight into the output (a slice across two chunks made the library read
+    each of them twice: 2.3 against 1.5 s for the 240 h recording)."""
     h = header or read_header(path)
     stop = h.n_samples if stop is None else min(stop, h.n_samples)
     nc = _open(path)
     try:
         nc.set_auto_mask(False)
         va, vg = nc.variables["accel"], nc.variables["gyro"]
-        for i0 in range(start, stop, chunk):
-            i1 = min(i0 + chunk, stop)
+        try:
+            tc = time_chunk(va)
+            if tc != time_chunk(vg):
+                tc = None   # different layouts: no common alignment, plain slices
+            elif tc is not None:
+                for v in (va, vg):
+                    v.set_var_chunk_cache(size=0)   # whole chunks only: no cache, no second copy
+        except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+            raise _unreadable(path, exc) from exc
+        for i0, i1 in slice_bounds(tc, max(int(start), 0), stop, chunk):
             try:
                 acc, gyr = np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
             except Exception as exc:  # noqa: BLE001 - corrupted sample data fail inside the library

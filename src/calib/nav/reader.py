@@ -1,9 +1,8 @@
 """Streaming reader of ``calib-recording-1`` samples for long navigation runs: chunk-aligned, overlapped.
 
-:func:`iter_raw_chunks` yields the same ``(first_sample_index, accel, gyro)`` float64 blocks as
-:func:`calib.io.recording.iter_raw_chunks` (the same samples, bit for bit) but reads in slices of a whole
-number of the file's chunks along ``time``: every chunk is read once, by one large read, straight into the
-output array (the per-variable chunk cache is switched off: no second copy).
+:func:`iter_raw_chunks` is :func:`calib.io.recording.iter_raw_chunks` (slices of a whole number of the file's chunks
+along ``time``: every chunk read once, by one large read, straight into the output array) with this module's
+default slice.
 
 :func:`for_each_chunk` runs a function on every slice in a worker thread while the calling thread reads the
 next slice, so reading from disk and navigating overlap (the navigation kernels are compiled without the
@@ -22,7 +21,7 @@ import netCDF4
 import numpy as np
 
 from calib.io import recording
-from calib.io.recording import RecordingError
+from calib.io.recording import RecordingError, slice_bounds, time_chunk
 
 #: target number of samples per slice when the caller gives none (24 MB per float64 triad)
 DEFAULT_SLICE = 1 << 20
@@ -31,29 +30,6 @@ DEFAULT_SLICE = 1 << 20
 def _unreadable(path, exc) -> RecordingError:
     """:func:`calib.io.recording._unreadable` (one wording for every reader); a RecordingError passes as it is."""
     return exc if isinstance(exc, RecordingError) else recording._unreadable(path, exc)
-
-
-def slice_bounds(n_time_chunk: int | None, start: int, stop: int, target: int) -> list[tuple[int, int]]:
-    """``[(i0, i1), ...]`` covering ``[start, stop)``: every boundary inside the range on a multiple of the
-    file's chunk length ``n_time_chunk`` (None: contiguous storage, any boundary), slices of about ``target``
-    samples (a whole number of chunks, at least one)."""
-    target = max(int(target), 1)
-    if n_time_chunk and n_time_chunk > 0:
-        step = max(1, int(round(target / n_time_chunk))) * n_time_chunk
-    else:
-        step = target
-    out = []
-    i0 = start
-    while i0 < stop:
-        i1 = min(stop, (i0 // step + 1) * step)  # next multiple of step: aligned from the second slice on
-        out.append((i0, i1))
-        i0 = i1
-    return out
-
-
-def _time_chunk(var) -> int | None:
-    ch = var.chunking()
-    return None if ch == "contiguous" or ch is None else int(ch[0])
 
 
 def _slices(path, header, chunk, start, stop):
@@ -69,8 +45,8 @@ def _slices(path, header, chunk, start, stop):
         nc.set_auto_mask(False)
         nc.set_auto_scale(False)
         va, vg = nc.variables["accel"], nc.variables["gyro"]
-        tc = _time_chunk(va)
-        if tc != _time_chunk(vg):
+        tc = time_chunk(va)
+        if tc != time_chunk(vg):
             tc = None  # different layouts: no common alignment, plain slices
         for v in (va, vg):
             v.set_var_chunk_cache(size=0)  # aligned slices read every chunk once: no cache, no extra copy
@@ -95,13 +71,7 @@ def iter_raw_chunks(path, header: recording.Header | None = None, chunk: int | N
     ``chunk``: target samples per slice (default :data:`DEFAULT_SLICE`), rounded to a whole number of the
     file's chunks. A file the library cannot read raises :class:`calib.io.recording.RecordingError`.
     """
-    nc, bounds, read = _slices(path, header, chunk, start, stop)
-    try:
-        for i0, i1 in bounds:
-            acc, gyr = read(i0, i1)
-            yield i0, acc, gyr
-    finally:
-        nc.close()
+    yield from recording.iter_raw_chunks(path, header, chunk or DEFAULT_SLICE, start, stop)
 
 
 def for_each_chunk(path, fn, header: recording.Header | None = None, chunk: int | None = None, start: int = 0,

@@ -97,24 +97,41 @@ def _raw_rate_factor(h, sensor):
 
 
 class _Blocks:
-    """Means and scatter of consecutive blocks of ``w`` samples, accumulated chunk by chunk (the samples after a
-    chunk's last whole block are left out)."""
+    """Means and scatter of the consecutive blocks of ``w`` samples of the whole record (samples ``[0, w)``,
+    ``[w, 2w)``, ...), accumulated chunk by chunk whatever the chunks' lengths: a chunk's samples after its last
+    whole block start the next chunk's first block; the record's last incomplete block is left out."""
 
     def __init__(self, w):
         self.w = w
         self.mean, self.sd = [], []
+        self.rest = None   # (3, r < w): the samples carried to the next chunk
 
     def add(self, t):
         """``t``: one chunk, axes first (3, n), contiguous; overwritten (the block means are subtracted)."""
-        nb = t.shape[1] // self.w
-        if nb == 0:
-            return
-        b = (t if nb * self.w == t.shape[1] else t[:, :nb * self.w]).reshape(3, nb, self.w)
-        m = b.sum(axis=2) / self.w                        # (3, nb): contiguous inner sums, not strided ones
-        b -= m[:, :, None]
-        var = np.einsum("abi,abi->ab", b, b) / self.w     # per axis; the block's scatter is the norm of its std
+        w, off = self.w, 0
+        if self.rest is not None:   # the block begun in the previous chunk
+            need = w - self.rest.shape[1]
+            if t.shape[1] < need:
+                self.rest = np.concatenate([self.rest, t], axis=1)
+                return
+            first = np.concatenate([self.rest, t[:, :need]], axis=1)
+            self.rest, off = None, need
+            self._blocks([first[a].reshape(1, w) for a in range(3)])
+        nb = (t.shape[1] - off) // w
+        end = off + nb * w
+        if end < t.shape[1]:
+            self.rest = t[:, end:].copy()
+        if nb:   # per axis, a view (nb, w) of the chunk's row: no copy, sums along memory
+            self._blocks([t[a, off:end].reshape(nb, w) for a in range(3)])
+
+    def _blocks(self, rows):
+        m = np.stack([r.sum(axis=1) for r in rows]) / self.w          # (3, nb)
+        var = np.empty_like(m)
+        for a, r in enumerate(rows):
+            r -= m[a][:, None]
+            var[a] = np.einsum("ij,ij->i", r, r) / self.w
         self.mean.append(m.T)
-        self.sd.append(np.sqrt(var.sum(axis=0)))
+        self.sd.append(np.sqrt(var.sum(axis=0)))   # the block's scatter: the norm of its per-axis std
 
     def arrays(self):
         if not self.mean:
@@ -130,9 +147,9 @@ def _axes_first(x, factor) -> np.ndarray:
     return t
 
 
-def _magnitude(t) -> np.ndarray:
-    """Per sample, the norm of an axes-first chunk (3, n)."""
-    return np.sqrt(np.einsum("ij,ij->j", t, t))
+def _squared_magnitude(t) -> np.ndarray:
+    """Per sample, the squared norm of an axes-first chunk (3, n)."""
+    return np.einsum("ij,ij->j", t, t)
 
 
 class RecordingCheck:
@@ -159,9 +176,9 @@ class RecordingCheck:
             a = _axes_first(acc, self.fa if self.fa is not None else self.ra)
             g = _axes_first(gyr, self.fg if self.fg is not None else 1.0)
             if self.fa is not None:
-                self.absurd["accel"].add(_magnitude(a) / earth.STANDARD_GRAVITY, i0)
+                self.absurd["accel"].add(_squared_magnitude(a), earth.STANDARD_GRAVITY, i0)
             if self.fg is not None:
-                self.absurd["gyro"].add(_magnitude(g) / earth.DEG, i0)
+                self.absurd["gyro"].add(_squared_magnitude(g), earth.DEG, i0)
             self.integer_accel = self.integer_accel and bool(np.all(acc == np.round(acc)))
             self.blocks_a.add(a)
             self.blocks_g.add(g)
@@ -287,7 +304,11 @@ class _Absurd:
         self.limit, self.unit, self.declared = limit, unit, declared
         self.first, self.value, self.count = None, None, 0
 
-    def add(self, mag, i0):
+    def add(self, m2, per_unit, i0):
+        """Samples ``i0 ..`` of squared magnitude ``m2``: magnitude ``sqrt(m2) / per_unit`` in ``unit``."""
+        if m2.size == 0 or m2.max() <= (self.limit * per_unit) ** 2 * (1.0 - 1e-9):
+            return   # every sample well inside the limit (a NaN fails the test: judged sample by sample below)
+        mag = np.sqrt(m2) / per_unit
         bad = ~(mag <= self.limit)
         if bad.any():
             if self.first is None:
