@@ -2,7 +2,8 @@
 
 ``calib diagnose`` spends most of its first second importing the numerical libraries; meanwhile a forked helper
 checks the input files sample by sample, imports the plotting library, and later draws the figures -- two at a
-time, one in a forked grandchild -- while the command's own process owns every output file:
+time, one in a forked grandchild; ``calib navigate`` has its helper check every sample of the recording while it
+navigates (its output is written once that check passed). The command's own process owns every output file:
 
 * the helper writes nothing: a job returns its value (a figure as PNG bytes) to the command, which writes it
   atomically as before (:mod:`calib.io.atomic`), so an interruption leaves no partial file whatever the helper
