@@ -478,32 +478,47 @@ def time_chunk(var) -> int | None:
     return None if ch == "contiguous" or ch is None else int(ch[0])
 
 
-def iter_raw_chunks(path, header: Header | None = None, chunk: int = 1_000_000, start: int = 0, stop=None):
-    """Yield ``(first_sample_index, accel, gyro)`` raw float64 arrays (n, 3) of ``[start, stop)`` in order, in
-    slices of about ``chunk`` samples made of whole chunks of the file (:func:`slice_bounds`): every chunk of the
-    file is read once, by one read, straight into the output (a slice across two chunks made the library read
-    each of them twice: 2.3 against 0.7-0.8 s for the 240 h recording)."""
+def open_slices(path, header: Header | None = None, chunk: int = 1_000_000, start: int = 0, stop=None, *,
+                auto_scale: bool = True):
+    """The reading of ``[start, stop)`` in slices of about ``chunk`` samples made of whole chunks of the file
+    (:func:`slice_bounds`): ``(open dataset, [(i0, i1), ...], read(i0, i1) -> (accel, gyro))``, raw float64 (n, 3);
+    the caller closes the dataset. Every chunk of the file is read once, by one read, straight into the output (a
+    slice across two chunks made the library read each of them twice: 2.3 against 0.7-0.8 s for the 240 h
+    recording). ``auto_scale``: netCDF's scale_factor / add_offset applied (the navigation reads without)."""
     h = header or read_header(path)
-    stop = h.n_samples if stop is None else min(stop, h.n_samples)
+    stop = h.n_samples if stop is None else min(int(stop), h.n_samples)
     nc = _open(path)
     try:
         nc.set_auto_mask(False)
+        nc.set_auto_scale(auto_scale)
         va, vg = nc.variables["accel"], nc.variables["gyro"]
+        tc = time_chunk(va)
+        if tc != time_chunk(vg):
+            tc = None   # different layouts: no common alignment, plain slices
+        for v in (va, vg):
+            v.set_var_chunk_cache(size=0)   # whole chunks only: no cache, no second copy
+        bounds = slice_bounds(tc, max(int(start), 0), stop, chunk)
+    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+        nc.close()
+        raise _unreadable(path, exc) from exc
+
+    def read(i0, i1):
         try:
-            tc = time_chunk(va)
-            if tc != time_chunk(vg):
-                tc = None   # different layouts: no common alignment, plain slices
-            elif tc is not None:
-                for v in (va, vg):
-                    v.set_var_chunk_cache(size=0)   # whole chunks only: no cache, no second copy
-        except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+            return np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
+        except Exception as exc:  # noqa: BLE001 - corrupted sample data fail inside the library
             raise _unreadable(path, exc) from exc
-        for i0, i1 in slice_bounds(tc, max(int(start), 0), stop, chunk):
-            try:
-                acc, gyr = np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
-            except Exception as exc:  # noqa: BLE001 - corrupted sample data fail inside the library
-                raise _unreadable(path, exc) from exc
-            yield i0, acc, gyr
+
+    return nc, bounds, read
+
+
+def iter_raw_chunks(path, header: Header | None = None, chunk: int = 1_000_000, start: int = 0, stop=None, *,
+                    auto_scale: bool = True):
+    """Yield ``(first_sample_index, accel, gyro)`` raw float64 arrays (n, 3) of ``[start, stop)`` in order, the
+    slices of :func:`open_slices`."""
+    nc, bounds, read = open_slices(path, header, chunk, start, stop, auto_scale=auto_scale)
+    try:
+        for i0, i1 in bounds:
+            yield (i0, *read(i0, i1))
     finally:
         nc.close()
 

@@ -2,7 +2,7 @@
 
 :func:`iter_raw_chunks` is :func:`calib.io.recording.iter_raw_chunks` (slices of a whole number of the file's chunks
 along ``time``: every chunk read once, by one large read, straight into the output array) with this module's
-default slice.
+default slice, the samples as stored (no netCDF scale_factor / add_offset applied, as before).
 
 :func:`for_each_chunk` runs a function on every slice in a worker thread while the calling thread reads the
 next slice, so reading from disk and navigating overlap (the navigation kernels are compiled without the
@@ -17,51 +17,10 @@ from __future__ import annotations
 
 import threading
 
-import netCDF4
-import numpy as np
-
 from calib.io import recording
-from calib.io.recording import RecordingError, slice_bounds, time_chunk
 
 #: target number of samples per slice when the caller gives none (24 MB per float64 triad)
 DEFAULT_SLICE = 1 << 20
-
-
-def _unreadable(path, exc) -> RecordingError:
-    """:func:`calib.io.recording._unreadable` (one wording for every reader); a RecordingError passes as it is."""
-    return exc if isinstance(exc, RecordingError) else recording._unreadable(path, exc)
-
-
-def _slices(path, header, chunk, start, stop):
-    """Header, open dataset, bounds and a read(i0, i1) function (all in the calling thread)."""
-    h = header or recording.read_header(path)
-    stop = h.n_samples if stop is None else min(int(stop), h.n_samples)
-    start = max(int(start), 0)
-    try:
-        nc = netCDF4.Dataset(path, "r")
-    except Exception as exc:  # noqa: BLE001 - whatever the netCDF library raises, the file is unreadable
-        raise _unreadable(path, exc) from exc
-    try:
-        nc.set_auto_mask(False)
-        nc.set_auto_scale(False)
-        va, vg = nc.variables["accel"], nc.variables["gyro"]
-        tc = time_chunk(va)
-        if tc != time_chunk(vg):
-            tc = None  # different layouts: no common alignment, plain slices
-        for v in (va, vg):
-            v.set_var_chunk_cache(size=0)  # aligned slices read every chunk once: no cache, no extra copy
-        bounds = slice_bounds(tc, start, stop, chunk or DEFAULT_SLICE)
-    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
-        nc.close()
-        raise _unreadable(path, exc) from exc
-
-    def read(i0, i1):
-        try:
-            return np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
-        except Exception as exc:  # noqa: BLE001 - corrupted sample data fail inside the library
-            raise _unreadable(path, exc) from exc
-
-    return nc, bounds, read
 
 
 def iter_raw_chunks(path, header: recording.Header | None = None, chunk: int | None = None, start: int = 0,
@@ -71,7 +30,7 @@ def iter_raw_chunks(path, header: recording.Header | None = None, chunk: int | N
     ``chunk``: target samples per slice (default :data:`DEFAULT_SLICE`), rounded to a whole number of the
     file's chunks. A file the library cannot read raises :class:`calib.io.recording.RecordingError`.
     """
-    yield from recording.iter_raw_chunks(path, header, chunk or DEFAULT_SLICE, start, stop)
+    yield from recording.iter_raw_chunks(path, header, chunk or DEFAULT_SLICE, start, stop, auto_scale=False)
 
 
 def for_each_chunk(path, fn, header: recording.Header | None = None, chunk: int | None = None, start: int = 0,
@@ -83,7 +42,7 @@ def for_each_chunk(path, fn, header: recording.Header | None = None, chunk: int 
     slice being read). ``progress(samples_done_up_to)`` is called in this thread once ``fn`` has finished a
     slice. ``overlap=False`` runs everything in this thread (same calls, same order).
     """
-    nc, bounds, read = _slices(path, header, chunk, start, stop)
+    nc, bounds, read = recording.open_slices(path, header, chunk or DEFAULT_SLICE, start, stop, auto_scale=False)
     try:
         if not overlap or len(bounds) < 2:
             for i0, i1 in bounds:
