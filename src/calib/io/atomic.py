@@ -108,6 +108,23 @@ def _finish(tmp, path) -> None:
         pending[Path(path)] = tmp
 
 
+@contextlib.contextmanager
+def scratch_folder(folder, make: bool = True):
+    """``folder`` for one run's temporary files, made when missing (``make`` False: the run needs none, nothing is
+    made) and removed again at the end of the block when the block made it and it is empty: a run leaves its
+    products only (whatever a failed run left in it stays, for a look)."""
+    folder = Path(folder)
+    made = make and not folder.exists()
+    if make:
+        folder.mkdir(parents=True, exist_ok=True)
+    try:
+        yield folder
+    finally:
+        if made:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+
+
 _SETS = threading.local()
 
 

@@ -6,7 +6,6 @@ Scientific products (netCDF, CSV, figures) never hold wall times; those go to ``
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import multiprocessing as mp
 import time
@@ -28,7 +27,7 @@ from calib.core.progress import Progress
 from calib.core.triad import PARAM_NAMES, TriadModel
 from calib.studies import stages
 from calib.core import seeds
-from calib.io.atomic import json_default, make_folder, strict_json, write_text
+from calib.io.atomic import json_default, make_folder, scratch_folder, strict_json, write_text
 from calib.sim import simulator as simulate
 
 #: how the DE variants of Liu 2021 map to the figures
@@ -607,40 +606,35 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
         raise ValueError("calibration.z_noise_record = shared needs the static_check recording (noise_record)")
     if mode not in ("none", "per_seed", "shared"):
         raise ValueError(f"calibration.z_noise_record: {mode!r}; use per_seed or shared")
-    workdir = Path(workdir)
-    made = files and not workdir.exists()   # a scratch folder for the file path only, removed again at the end
-    if files:
-        workdir.mkdir(parents=True, exist_ok=True)
-    shared = recording.load(noise_record) if mode == "shared" else None
-    z = {"with": {"accel": [], "gyro": []}, "segment": {"accel": [], "gyro": []}}
-    names = {}
-    bar = Progress(n_seeds, "noise seeds")
-    _Z.clear()
-    _Z.update(_z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files))
-    try:
-        workers = max(1, min(int(workers), n_seeds))
-        if workers > 1:
-            from concurrent.futures import ProcessPoolExecutor
-
-            ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"))
-            results = ex.map(_z_seed, range(n_seeds))
-        else:
-            ex, results = None, map(_z_seed, range(n_seeds))
-        try:
-            for k, (out, nm) in enumerate(results):
-                for key, zz in out.items():
-                    for sensor in ("accel", "gyro"):
-                        z[key][sensor].append(zz[sensor])
-                names = nm
-                bar(k + 1)
-        finally:
-            if ex is not None:
-                ex.shutdown(cancel_futures=True)
-    finally:
+    # a scratch folder for the file path only (the in-memory path makes none), removed again at the end
+    with scratch_folder(workdir, make=files) as workdir:
+        shared = recording.load(noise_record) if mode == "shared" else None
+        z = {"with": {"accel": [], "gyro": []}, "segment": {"accel": [], "gyro": []}}
+        names = {}
+        bar = Progress(n_seeds, "noise seeds")
         _Z.clear()
-        if made:
-            with contextlib.suppress(OSError):   # empty unless a seed failed: then its files stay for a look
-                workdir.rmdir()
+        _Z.update(_z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files))
+        try:
+            workers = max(1, min(int(workers), n_seeds))
+            if workers > 1:
+                from concurrent.futures import ProcessPoolExecutor
+
+                ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"))
+                results = ex.map(_z_seed, range(n_seeds))
+            else:
+                ex, results = None, map(_z_seed, range(n_seeds))
+            try:
+                for k, (out, nm) in enumerate(results):
+                    for key, zz in out.items():
+                        for sensor in ("accel", "gyro"):
+                            z[key][sensor].append(zz[sensor])
+                    names = nm
+                    bar(k + 1)
+            finally:
+                if ex is not None:
+                    ex.shutdown(cancel_futures=True)
+        finally:
+            _Z.clear()
     main = "with" if mode != "none" else "segment"
     header = "sensor,parameter,mean_z,std_z,n_seeds" + (",mean_z_segment_sigma,std_z_segment_sigma" if main == "with"
                                                         else "")

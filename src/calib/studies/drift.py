@@ -4,11 +4,9 @@ Called by the workflow rules ``drift_pso`` and ``drift_validation`` and by ``cal
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 import xarray as xr
@@ -21,6 +19,7 @@ from calib.io import recording
 from calib.nav import reader as nav_reader
 from calib.nav import strapdown
 from calib.core.earth import DEG_PER_H
+from calib.io.atomic import scratch_folder
 from calib.io.netcdf import write_netcdf
 from calib.core.progress import Progress
 from calib.nav import errormodel
@@ -354,15 +353,8 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
     99 % band around 95 %, and std(z) in 0.85-1.15.
     """
 
-    workdir = Path(workdir)
-    made = not workdir.exists()   # a scratch folder for one seed's file at a time, removed again at the end
-    workdir.mkdir(parents=True, exist_ok=True)
-    try:
-        return _noise_seeds(out_nc, out_csv, fig, metrics_path, session, site, dcfg, n_seeds, seed0, workdir, prov, log)
-    finally:
-        if made:
-            with contextlib.suppress(OSError):
-                workdir.rmdir()
+    with scratch_folder(workdir) as work:   # one seed's recording at a time
+        return _noise_seeds(out_nc, out_csv, fig, metrics_path, session, site, dcfg, n_seeds, seed0, work, prov, log)
 
 
 def _noise_seeds(out_nc, out_csv, fig, metrics_path, session, site, dcfg, n_seeds, seed0, workdir, prov, log):
