@@ -225,3 +225,41 @@ def test_version_prints_the_package_version_and_exits_0():
 
     r = subprocess.run([sys.executable, "-m", "calib.cli", "--version"], cwd=ROOT, capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout.strip() == f"calib {__version__}" and r.stderr == ""
+
+
+_ENDING = """
+import atexit, sys, threading, weakref
+from calib import cli
+
+class Module:   # stands for a library's objects, freed one by one by the interpreter's teardown
+    def __del__(self):
+        print("teardown ran", flush=True)
+
+KEEP = Module()
+weakref.finalize(KEEP, print, "finalizer at exit ran")   # atexit=True: run by the exit handlers
+atexit.register(print, "exit handler ran")
+if sys.argv[1] == "thread":   # a non-daemon thread still running: Python's own exit waits for it
+    threading.Thread(target=lambda: (__import__("time").sleep(0.3), print("thread finished", flush=True))).start()
+sys.stdout.write("x" * 200000)   # buffered output, delivered whole
+sys.argv = ["calib", "validate", sys.argv[2]]
+cli.run()
+"""
+
+
+def test_the_command_ends_without_the_interpreter_teardown(tmp_path):
+    """``calib`` ends with os._exit once its outcome is written (calib.cli._end): the exit code of the command, its
+    exit handlers run and its buffered output flushed -- only the interpreter's teardown (the 0.5-0.7 s of freeing
+    the numerical libraries after a ``calib diagnose``) is skipped; with a non-daemon thread still running it exits
+    as Python does, after that thread."""
+    missing = tmp_path / "missing.nc"
+    r = subprocess.run([sys.executable, "-c", _ENDING, "plain", str(missing)], capture_output=True, text=True,
+                       cwd=ROOT, timeout=120)
+    assert r.returncode == errors.EXIT_INPUT, r.stderr
+    assert "missing.nc" in r.stderr and "Traceback" not in r.stderr
+    assert r.stdout.startswith("x" * 200000)
+    assert "exit handler ran" in r.stdout and "finalizer at exit ran" in r.stdout
+    assert "teardown ran" not in r.stdout   # the module's objects were not freed one by one
+    r = subprocess.run([sys.executable, "-c", _ENDING, "thread", str(missing)], capture_output=True, text=True,
+                       cwd=ROOT, timeout=120)
+    assert r.returncode == errors.EXIT_INPUT, r.stderr
+    assert "thread finished" in r.stdout + r.stderr and "exit handler ran" in r.stdout
