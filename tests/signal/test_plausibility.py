@@ -71,6 +71,57 @@ def test_block_statistics_are_the_plain_definitions():
                                2.0 * np.linalg.norm(chunks[0], axis=1), rtol=1e-15)
 
 
+def test_block_sums_of_squares_bound_the_samples():
+    """_Blocks.add returns the largest sum of |x|^2 over the blocks it completed (the plain definition on the
+    record's blocks, NaN when one holds a NaN) and where this chunk's samples outside them begin."""
+    rng = np.random.default_rng(6)
+    w = 50
+    sizes = (1000, 777, 49, 1, 130)
+    x = rng.normal([0.1, -0.2, 9.8], [1e-3, 2e-3, 3e-3], (sum(sizes), 3))
+    ends = np.cumsum(sizes)
+    blocks = pl._Blocks(w)
+    got = [blocks.add(pl._axes_first(x[e - n:e], 1.0)) for n, e in zip(sizes, ends)]
+    ss = np.einsum("ijk,ijk->i", *2 * [x[:len(x) // w * w].reshape(-1, w, 3)])   # sum |x|^2 per record block
+    for (bound, end), n, e in zip(got, sizes, ends):
+        done = [b for b in range(len(ss)) if e - n < (b + 1) * w <= e]             # blocks completed by this chunk
+        assert bound == (pytest.approx(ss[done].max(), rel=1e-13) if done else -np.inf)
+        assert end == (((e // w) * w - (e - n)) if done else 0)
+    blocks = pl._Blocks(w)
+    y = x[:100].copy()
+    y[70, 1] = np.nan
+    assert np.isnan(blocks.add(pl._axes_first(y, 1.0))[0])
+
+
+def test_absurd_samples_are_found_wherever_the_chunks_cut_the_blocks(tmp_path):
+    """The spike test decides from the block sums whether a chunk needs its samples tested one by one; spikes in a
+    block straddling two chunks (on either side of the cut), inside a chunk, and in the record's last incomplete
+    block: first index and count as numpy finds them on the whole record."""
+    from calib.io import recording
+
+    rng = np.random.default_rng(9)
+    n, fs = 30_050, 100.0
+    gyr = rng.normal(0, 1e-4, (n, 3)) + np.radians(15.04 / 3600) * np.array([0.0, 0.6, 0.8])
+    acc = rng.normal(0, 1e-2, (n, 3)) + [0.0, 0.0, 9.79]
+    spikes = {7_000: 1.5e4, 14_005: -2e4, 12_345: 2e4, 30_040: 3e4}    # chunks of 7001: cuts at 7001, 14002, ...
+    for i, v in spikes.items():
+        acc[i] = [0.0, v, 0.0]
+    gyr[21_004] = [0.0, 0.0, np.radians(2e4)]                           # 2e4 deg/s, just after the cut at 21003
+    ds = recording.make_dataset(acc, gyr, sample_rate_hz=fs, latitude_deg=30.0, accel_units="m s-2",
+                                gyro_units="rad s-1", source="synthetic")
+    path = recording.write(ds, tmp_path / "r.nc")
+    h = recording.read_header(path)
+    check = pl.RecordingCheck(path, h, force=True)
+    for i0, a, g in recording.iter_raw_chunks(path, h, chunk=7_001):
+        check.add(i0, a, g)
+    res = check.finish()
+    for name, x, limit in (("accel", acc, pl.ABSURD_ACCEL_G * earth.STANDARD_GRAVITY),
+                           ("gyro", gyr, math.radians(pl.ABSURD_GYRO_DEG_S))):
+        bad = np.flatnonzero(np.linalg.norm(x, axis=1) > limit)
+        assert len(bad) == (4 if name == "accel" else 1)
+        found = [w for w in res.warnings if f": {name}: sample" in w]
+        assert len(found) == 1 and f"sample {bad[0]}:" in found[0] and f"({len(bad)} such sample(s))" in found[0]
+
+
 def test_a_check_fed_chunk_by_chunk_is_the_check_of_the_file(tmp_path):
     """RecordingCheck fed the samples chunk by chunk (here 7001 samples a chunk: no whole number of blocks) judges
     as check_recording reading the file itself; a spike named by its index."""

@@ -107,22 +107,27 @@ class _Blocks:
         self.rest = None   # (3, r < w): the samples carried to the next chunk
 
     def add(self, t):
-        """``t``: one chunk, axes first (3, n), contiguous; overwritten (the block means are subtracted)."""
-        w, off = self.w, 0
+        """``t``: one chunk, axes first (3, n), contiguous; its samples inside the blocks completed here are
+        overwritten (the block means are subtracted), those after them (``t[:, end:]``) are not. Returns ``(ss,
+        end)``: the largest sum of squared magnitudes ``sum |x|^2`` over any block completed here (-inf: none; NaN
+        when a block holds a NaN), and the index from which this chunk's samples are in no block completed here
+        (carried to the next chunk, or the record's tail)."""
+        w, off, ss = self.w, 0, -np.inf
         if self.rest is not None:   # the block begun in the previous chunk
             need = w - self.rest.shape[1]
             if t.shape[1] < need:
                 self.rest = np.concatenate([self.rest, t], axis=1)
-                return
+                return ss, 0
             first = np.concatenate([self.rest, t[:, :need]], axis=1)
             self.rest, off = None, need
-            self._blocks([first[a].reshape(1, w) for a in range(3)])
+            ss = self._blocks([first[a].reshape(1, w) for a in range(3)])
         nb = (t.shape[1] - off) // w
         end = off + nb * w
         if end < t.shape[1]:
             self.rest = t[:, end:].copy()
         if nb:   # per axis, a view (nb, w) of the chunk's row: no copy, sums along memory
-            self._blocks([t[a, off:end].reshape(nb, w) for a in range(3)])
+            ss = float(np.maximum(ss, self._blocks([t[a, off:end].reshape(nb, w) for a in range(3)])))   # NaN stays
+        return ss, end
 
     def _blocks(self, rows):
         m = np.stack([r.sum(axis=1) for r in rows]) / self.w          # (3, nb)
@@ -131,7 +136,10 @@ class _Blocks:
             r -= m[a][:, None]
             var[a] = np.einsum("ij,ij->i", r, r) / self.w
         self.mean.append(m.T)
-        self.sd.append(np.sqrt(var.sum(axis=0)))   # the block's scatter: the norm of its per-axis std
+        v = var.sum(axis=0)
+        self.sd.append(np.sqrt(v))   # the block's scatter: the norm of its per-axis std
+        # sum over the block of |x|^2 = w (|mean|^2 + scatter^2): bounds every sample's squared magnitude
+        return float(np.max(self.w * (np.einsum("ij,ij->j", m, m) + v)))
 
     def arrays(self):
         if not self.mean:
@@ -175,13 +183,14 @@ class RecordingCheck:
         with np.errstate(over="ignore", invalid="ignore"):   # overflowing samples are absurd samples, judged later
             a = _axes_first(acc, self.fa if self.fa is not None else self.ra)
             g = _axes_first(gyr, self.fg if self.fg is not None else 1.0)
-            if self.fa is not None:
-                self.absurd["accel"].add(_squared_magnitude(a), earth.STANDARD_GRAVITY, i0)
-            if self.fg is not None:
-                self.absurd["gyro"].add(_squared_magnitude(g), earth.DEG, i0)
             self.integer_accel = self.integer_accel and bool(np.all(acc == np.round(acc)))
-            self.blocks_a.add(a)
-            self.blocks_g.add(g)
+            for x, t, blocks, factor, sensor, per_unit in ((acc, a, self.blocks_a, self.fa, "accel",
+                                                             earth.STANDARD_GRAVITY),
+                                                            (gyr, g, self.blocks_g, self.fg, "gyro", earth.DEG)):
+                ss, end = blocks.add(t)   # (t's samples in the blocks completed now are overwritten)
+                if factor is not None:
+                    self.absurd[sensor].add_bounded(ss, t[:, end:], per_unit, i0, end,
+                                                    lambda x=x, factor=factor: _axes_first(x, factor))
         self.n_seen += len(acc)
 
     def finish(self) -> Plausibility:
@@ -315,6 +324,19 @@ class _Absurd:
                 i = int(np.argmax(bad))
                 self.first, self.value = i0 + i, float(mag[i])
             self.count += int(bad.sum())
+
+    def add_bounded(self, ss, tail, per_unit, i0, end, chunk):
+        """:meth:`add` for one chunk of samples ``i0 ..`` from the block sums of :meth:`_Blocks.add`: ``ss``, the
+        largest sum of squared magnitudes over the blocks completed with the chunk, bounds the squared magnitude
+        of every sample in them (each is one of the sum's non-negative terms); the samples after them (``tail``,
+        axes first, from index ``end`` of the chunk) are tested one by one. Only when the bound is above the limit
+        (or NaN) are the chunk's samples tested one by one (``chunk()``: the chunk axes first again, scaled): a
+        clean chunk costs no pass over its samples. (The samples of a completed block that came from the previous
+        chunk were tested there, as that chunk's tail.)"""
+        if not ss <= (self.limit * per_unit) ** 2 * (1.0 - 1e-9):
+            self.add(_squared_magnitude(chunk()), per_unit, i0)   # the samples one by one, named by index
+            return
+        self.add(_squared_magnitude(tail), per_unit, i0 + end)
 
     def judge(self, refuse, sensor):
         if self.first is not None:
