@@ -1,6 +1,7 @@
 """The exit-code contract of ``calib`` (calib.core.errors.EXIT_CODES): documented in ``calib --help`` and the
 README, and kept by every outcome -- success 0, the diagnosis verdicts 0/1/3, usage and input errors 2, an
-internal error 70 with its traceback in a log file, SIGINT 130 and SIGTERM 143 with no partial file left."""
+internal error 70 with its traceback in a log file, SIGINT 130 and SIGTERM 143 with no partial file left, a reader
+gone from standard output 141."""
 from __future__ import annotations
 
 import json
@@ -21,7 +22,7 @@ from calib.sim import simulator
 ROOT = Path(__file__).resolve().parents[2]
 SMALL_CONFIG = ROOT / ".test" / "config.yaml"
 SHORT_SESSION = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
-CONTRACT = {0, 1, 2, 3, 70, 130, 143}
+CONTRACT = {0, 1, 2, 3, 70, 130, 141, 143}
 
 
 def calib(*argv, **kw):
@@ -263,3 +264,19 @@ def test_the_command_ends_without_the_interpreter_teardown(tmp_path):
                        cwd=ROOT, timeout=120)
     assert r.returncode == errors.EXIT_INPUT, r.stderr
     assert "thread finished" in r.stdout + r.stderr and "exit handler ran" in r.stdout
+
+
+def test_a_reader_gone_from_standard_output_is_141_not_an_input_error(tmp_path):
+    """``calib ... | head -1`` whose reader left before the promised line: the command stops silently with 141 (as a
+    shell reports a command its pipe's reader left), not 2 with "error: Broken pipe", which blamed the input."""
+    out = tmp_path / "nav.nc"
+    assert cli.main(["simulate", "navigation", str(out), "--config", str(SMALL_CONFIG), "--hours", "0.005"]) == 0
+    r, w = os.pipe()
+    os.close(r)   # nobody reads: the first write to standard output fails with EPIPE
+    try:
+        p = subprocess.run([sys.executable, "-m", "calib.cli", "validate", str(out)], stdout=w, stderr=subprocess.PIPE,
+                           text=True, cwd=ROOT, timeout=120, env={**os.environ, "CALIB_SERVER": "off"})
+    finally:
+        os.close(w)
+    assert p.returncode == errors.EXIT_SIGPIPE == 141, p.stderr
+    assert "error" not in p.stderr and "Traceback" not in p.stderr and "Exception ignored" not in p.stderr, p.stderr

@@ -35,8 +35,9 @@ from pathlib import Path
 import yaml
 
 from calib import __version__
-from calib.core.errors import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_SIGINT, CalibError, InputError,
-                               ResultCheckError, Terminated, input_file, load_mapping, schema_error, yaml_problem)
+from calib.core.errors import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_SIGINT, EXIT_SIGPIPE, CalibError,
+                               InputError, ResultCheckError, Terminated, input_file, load_mapping, schema_error,
+                               yaml_problem)
 
 #: the study configuration of the source tree calib runs from (not of the working directory)
 DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "config" / "config.yaml"
@@ -521,10 +522,28 @@ def emit(text) -> None:
     """The promised output of a sub-command (a summary, a verdict, the path written): the only thing on
     standard output. Everything else a command prints while it works goes to standard error (or nowhere
     with ``--quiet``)."""
-    print(text, file=_STDOUT[0] or sys.stdout, flush=True)
+    try:
+        print(text, file=_STDOUT[0] or sys.stdout, flush=True)
+    except BrokenPipeError:   # not an input error: the reader went away (exit 141, as a shell reports it)
+        raise _OutputClosed() from None
 
 
 _STDOUT = [None]
+
+
+class _OutputClosed(Exception):
+    """Standard output's reader went away while :func:`emit` wrote to it (``calib ... | head -1``)."""
+
+
+def _output_closed() -> int:
+    """Standard output from now on goes nowhere (Python's own flush at the exit would fail on the closed pipe
+    again and print a message); the command stops silently with 141, as a shell reports a command killed by
+    SIGPIPE -- not 2, which would blame the input."""
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    return EXIT_SIGPIPE
 
 
 def _one_line_warning(message, category, filename, lineno, line=None):
@@ -546,6 +565,8 @@ def _dispatch(a, exiting: bool = False) -> int:
         with _signals(exiting), contextlib.redirect_stdout(chatter):
             code = a.fn(a)
         return code or 0
+    except _OutputClosed:
+        return _output_closed()
     except KeyboardInterrupt as exc:
         sig = "SIGTERM" if isinstance(exc, Terminated) else "SIGINT"
         _say(f"{name}: interrupted by {sig}; no partial output left, earlier outputs kept")

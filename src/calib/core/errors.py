@@ -32,6 +32,7 @@ EXIT_RESULT = 3
 EXIT_INTERNAL = 70
 EXIT_SIGINT = 128 + int(signal.SIGINT)     # 130
 EXIT_SIGTERM = 128 + int(signal.SIGTERM)   # 143
+EXIT_SIGPIPE = 128 + int(getattr(signal, "SIGPIPE", 13))   # 141, as a shell reports a command its pipe's reader left
 
 #: the contract, in the words the command line prints
 EXIT_CODES = (
@@ -43,6 +44,8 @@ EXIT_CODES = (
     (EXIT_INTERNAL, "internal error: one line on the terminal, the traceback in a log file"),
     (EXIT_SIGINT, "interrupted by SIGINT (Ctrl-C); no partial output is left"),
     (EXIT_SIGTERM, "terminated by SIGTERM; no partial output is left"),
+    (EXIT_SIGPIPE, "the reader of standard output went away (e.g. '| head'): stopped there, silently; no partial "
+                   "output is left"),
 )
 
 
