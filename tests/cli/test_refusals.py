@@ -561,9 +561,18 @@ def test_the_samples_are_read_once_for_the_format_and_the_plausibility_checks(tm
         reads.append(1)
         yield from chunks(*a, **k)
 
+    headers = []
+    read_header = recording.read_header
+
+    def counted_header(*a, **k):
+        headers.append(1)
+        return read_header(*a, **k)
+
     monkeypatch.setattr(recording, "iter_raw_chunks", counted)
+    monkeypatch.setattr(recording, "read_header", counted_header)
     h, pl = cli._check_recording(rec, False, "recording")
     assert len(reads) == 1
+    assert len(headers) == 1   # the header too (a long recording's time coordinate is read whole for its checks)
     separate = plausibility.check_recording(rec, recording.validate(rec))
     assert len(reads) == 3
     assert (pl.describe(), pl.warnings, pl.n_quiet_blocks) == (separate.describe(), separate.warnings,

@@ -117,8 +117,9 @@ def _check_recording(path, force, what):
     from calib.signal import plausibility
 
     f = input_file(path, what)
-    check = plausibility.RecordingCheck(path, recording.read_header(f), force=force)
-    h = recording.validate(f, on_chunk=check.add)
+    header = recording.read_header(f)   # (read once: the time coordinate of a long recording is read whole)
+    check = plausibility.RecordingCheck(path, header, force=force)
+    h = recording.validate(f, on_chunk=check.add, header=header)
     if check.n_seen != h.n_samples:   # known as validated already (no samples passed on): read for the judgement
         return h, plausibility.check_recording(path, h, force=force)
     return h, check.finish()

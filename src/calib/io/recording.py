@@ -384,17 +384,19 @@ def remember_validated(key, header: Header) -> None:
         _VALIDATED[key] = dataclasses.replace(header, attrs=dict(header.attrs))
 
 
-def validate(path, on_chunk=None) -> Header:
+def validate(path, on_chunk=None, header: Header | None = None) -> Header:
     """Full check of a recording: header (time coordinate included), segment table and every sample (read
     in chunks: NaN/Inf and masked / _FillValue samples are refused with their index). ``on_chunk(first_index,
     accel, gyro)``: called with each chunk of raw samples once it passed, so that a further check of the samples
-    needs no second read (not called when the file is known as validated: :func:`reuse_validation`)."""
+    needs no second read (not called when the file is known as validated: :func:`reuse_validation`). ``header``:
+    :func:`read_header` of the file when the caller has it already (its checks, the whole time coordinate's
+    included, are not run twice)."""
     memo = _VALIDATED
     key = identity(path) if memo is not None else None   # taken before the check: a file changed since misses
     if key is not None and key in memo:
         h = memo[key]
         return dataclasses.replace(h, attrs=dict(h.attrs))
-    h = read_header(path)
+    h = header or read_header(path)
     try:
         _validate_body(path, h, on_chunk)
     except RecordingError:
