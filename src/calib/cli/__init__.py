@@ -269,7 +269,7 @@ def cmd_navigate(a):
     # every sample is checked beside the navigation, by the command's helper process (the second core); the result
     # is written only once that check passed, and its refusal comes before anything the navigation raised
     with recording.reuse_validation(), helper.running() as h:
-        job = h.submit([("calib.cli:_input_check", (a.recording, a.force, "recording"))]) if h is not None else None
+        job = _start_input_check(h, a.recording, a.force, "recording") if h is not None else None
         if job is None:
             _recording(a.recording, a.force)
         pending = [job] if job is not None else []
@@ -319,9 +319,9 @@ def _diagnose(a, h=None):
     warm = "calib.diagnosis" in sys.modules   # a run of the warm server (calib.cli.server): nothing left to import
     if h is not None:   # the input checks start now, beside the import of the diagnosis
         if not warm:   # (warm, the command checks the recording itself meanwhile: it would only wait)
-            checks["recording"] = h.submit([("calib.cli:_input_check", (a.recording, a.force, "recording"))])
+            checks["recording"] = _start_input_check(h, a.recording, a.force, "recording")
         if a.noise_record:
-            checks["noise record"] = h.submit([("calib.cli:_input_check", (a.noise_record, a.force, "noise record"))])
+            checks["noise record"] = _start_input_check(h, a.noise_record, a.force, "noise record")
         if (settings or {}).get("figures", True):
             h.submit([("calib.figures.diagnosis:warm_up", ())])   # the plotting library, loaded meanwhile
     from calib.diagnosis import diagnose
@@ -362,6 +362,11 @@ def _input_check(path, force, what):
     key = recording.identity(path)
     h, pl = _check_recording(path, force, what)
     return key, h, list(pl.warnings)
+
+
+def _start_input_check(h, path, force, what):
+    """The helper's job running :func:`_input_check` on ``path`` (collected by :func:`_checked_input`)."""
+    return h.submit([("calib.cli:_input_check", (path, force, what))])
 
 
 def _checked_input(path, force, what, h=None, job=None):
