@@ -623,6 +623,31 @@ def test_navigate_checks_every_sample_beside_the_navigation_and_its_refusal_wins
     assert out.read_bytes() == b"earlier output" and leftovers(tmp_path) == []
 
 
+def test_navigate_reads_the_recording_s_header_once_beside_its_check(tmp_path, capsys, monkeypatch):
+    """`calib navigate` reads the header (for a recording with a time coordinate: the whole time array, differenced
+    and fitted) once for the navigation and once for the sample check: the early units check, the progress bar and
+    the navigation share the first read. Counted with the check in the command's own process."""
+    from calib.core import helper
+    from calib.studies import navigation as navigation_study
+
+    rec = tmp_path / "nav.nc"
+    assert cli.main(["simulate", "navigation", str(rec), "--config", str(ROOT / ".test" / "config.yaml"),
+                     "--hours", "0.005"]) == 0
+    monkeypatch.setenv(helper.ENV, "off")
+    reads = []
+    read_header = recording.read_header
+
+    def counted(*a, **k):
+        reads.append(1)
+        return read_header(*a, **k)
+
+    monkeypatch.setattr(recording, "read_header", counted)
+    monkeypatch.setattr(navigation_study, "read_header", counted)
+    code, err = run(capsys, "navigate", rec, "--out", tmp_path / "out.nc", "--output-interval", "1")
+    assert code == 0 and (tmp_path / "out.nc").exists(), err
+    assert len(reads) == 2, len(reads)
+
+
 def test_no_recorded_attitude_is_refused_with_the_command_s_option(tmp_path, capsys, static_rates):
     acc, gyr = static_rates
     code, err = run(capsys, "navigate", physical(tmp_path, "r.nc", acc, gyr), "--out", tmp_path / "nav.nc")

@@ -264,7 +264,7 @@ def cmd_navigate(a):
     _output_file(a.out, "navigation output")
     # what needs no sample first: a wrong pairing of units and calibration is named at once, not after the check of
     # every sample of a long recording (4-5 s for 240 h at 100 Hz)
-    navigation_study.check_navigation_inputs(input_file(a.recording, "recording"), a.calibration)
+    header = navigation_study.check_navigation_inputs(input_file(a.recording, "recording"), a.calibration)
     nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
     # every sample is checked beside the navigation, by the command's helper process (the second core); the result
     # is written only once that check passed, and its refusal comes before anything the navigation raised
@@ -280,7 +280,7 @@ def cmd_navigate(a):
 
         try:
             navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs",
-                                           inputs_checked=checked)
+                                           inputs_checked=checked, header=header)
         except Exception:
             checked()   # the input's refusal names the cause of whatever the navigation raised
             raise

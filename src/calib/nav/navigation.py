@@ -390,7 +390,8 @@ def resolve_init(path, header: recording.Header, init, calibration=None, align_w
 # ======================================================================================================
 def navigate_recording(path, calibration=None, init=None, nav_rate_hz: float = 10.0, output_interval_s: float = 1.0,
                        chunk: int | None = None, progress=None, gyro_bias_rad_s=None, accel_bias=None,
-                       vertical: str = "hold", align_window_s: float = 600.0, parallel: bool = True) -> xr.Dataset:
+                       vertical: str = "hold", align_window_s: float = 600.0, parallel: bool = True,
+                       header: recording.Header | None = None) -> xr.Dataset:
     """Pure-inertial navigation of a stationary recording, streamed; returns navigation errors.
 
     path: a ``calib-recording-1`` file. calibration: :class:`Calibration` for count recordings, None for
@@ -401,14 +402,16 @@ def navigate_recording(path, calibration=None, init=None, nav_rate_hz: float = 1
     chunk: samples per read (default about 2**20, rounded to whole chunks of the file); the samples are read
     by :func:`calib.nav.reader.for_each_chunk`: the next slice is read while this one is navigated in a
     worker thread (memory flat: two slices in memory at a time); a ``calibration`` object must not use
-    netCDF (it runs in that worker thread).
+    netCDF (it runs in that worker thread). header: :func:`calib.io.recording.read_header` of ``path`` when the
+    caller has it (a recording's time coordinate is read whole for its checks).
 
     Returns an ``xarray.Dataset`` on ``time`` [h] (the first record is the initial state at t = 0) with the
     navigated pitch, roll, yaw, vE, vN, vU, lat, lon, h and the errors pitch_err, roll_err, yaw_err,
     phi_E/N/U [rad] (+ ``*_arcmin``), vE_err, vN_err [m/s], lat_err, lon_err [rad] (+ ``*_arcmin``),
     north_err_m, east_err_m [m].
     """
-    h = recording.read_header(path)  # missing latitude, bad units, non-monotonic time -> RecordingError
+    # missing latitude, bad units, non-monotonic time -> RecordingError (``header``: the caller's read of it)
+    h = header or recording.read_header(path)
     check_units(h, calibration)
     n_sub_f = h.sample_rate_hz / float(nav_rate_hz)
     n_sub = int(round(n_sub_f))

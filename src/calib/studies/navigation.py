@@ -111,24 +111,29 @@ def load_calibration(nc_path):
                                            TriadModel.from_vector(d["gyro"].values, "deg h-1", "count s-1"))
 
 
-def check_navigation_inputs(recording_path, calibration_nc) -> None:
+def check_navigation_inputs(recording_path, calibration_nc):
     """What can be refused before a sample is read: the recording's units against the calibration given (raw counts
     need one, physical units take none; :func:`calib.nav.navigation.check_units`). ``calib navigate`` asks this
-    first: a wrong pairing is named at once, not after the full check of a long recording's samples."""
-    navigation.check_units(read_header(recording_path), load_calibration(calibration_nc) if calibration_nc else None)
+    first: a wrong pairing is named at once, not after the full check of a long recording's samples. Returns the
+    recording's header (for :func:`navigate_file`)."""
+    h = read_header(recording_path)
+    navigation.check_units(h, load_calibration(calibration_nc) if calibration_nc else None)
+    return h
 
 
 def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print,
-                  inputs_checked=None):
+                  inputs_checked=None, header=None):
     """Navigate one recording (streamed, progress in the log) and write the labelled error dataset.
     ``inputs_checked()``: called once the navigation is done, before its result is judged or written (``calib
     navigate`` checks every sample of the recording beside the navigation and collects that check there: a refusal
-    of it raises and nothing is written)."""
+    of it raises and nothing is written). ``header``: the recording's header when the caller has read it."""
 
     cal = load_calibration(calibration_nc) if calibration_nc else None
-    bar = Progress(read_header(recording_path).n_samples, f"navigating {Path(recording_path).name}")
+    h = header or read_header(recording_path)
+    bar = Progress(h.n_samples, f"navigating {Path(recording_path).name}")
     ds = navigation.navigate_recording(recording_path, calibration=cal, init=init, nav_rate_hz=nav["nav_rate_hz"],
-                                       output_interval_s=nav["output_interval_s"], progress=lambda d, n: bar(d))
+                                       output_interval_s=nav["output_interval_s"], progress=lambda d, n: bar(d),
+                                       header=h)
     if inputs_checked is not None:
         inputs_checked()
     # a non-finite solution is refused (exit 3) before it could replace an earlier output
