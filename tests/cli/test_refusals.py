@@ -548,28 +548,28 @@ def test_units_and_calibration_that_do_not_pair_are_refused_before_any_sample_is
     assert not (tmp_path / "out.nc").exists()
 
 
+def count_calls(monkeypatch, name, *modules) -> list:
+    """Replace function ``name`` in each of ``modules`` (the same function, imported by name) by a wrapper of the
+    first's that notes each call; returns the list of notes."""
+    calls, fn = [], getattr(modules[0], name)
+
+    def counted(*a, **k):
+        calls.append(1)
+        return fn(*a, **k)
+
+    for m in modules:
+        monkeypatch.setattr(m, name, counted)
+    return calls
+
+
 def test_the_samples_are_read_once_for_the_format_and_the_plausibility_checks(tmp_path, monkeypatch):
     """`_check_recording` validates every sample and judges their magnitudes on one read of the file, with the
     judgement of a separate read; a file known as validated (reuse_validation) is read once for the judgement."""
     acc = np.tile([0.0, 0.0, 9.79], (3000, 1)) + np.random.default_rng(1).normal(0, 1e-3, (3000, 3))
     gyr = np.tile(np.radians([0.0, 0.002, 0.003]), (3000, 1))
     rec = physical(tmp_path, "r.nc", acc, gyr)
-    reads = []
-    chunks = recording.iter_raw_chunks
-
-    def counted(*a, **k):
-        reads.append(1)
-        yield from chunks(*a, **k)
-
-    headers = []
-    read_header = recording.read_header
-
-    def counted_header(*a, **k):
-        headers.append(1)
-        return read_header(*a, **k)
-
-    monkeypatch.setattr(recording, "iter_raw_chunks", counted)
-    monkeypatch.setattr(recording, "read_header", counted_header)
+    reads = count_calls(monkeypatch, "iter_raw_chunks", recording)
+    headers = count_calls(monkeypatch, "read_header", recording)
     h, pl = cli._check_recording(rec, False, "recording")
     assert len(reads) == 1
     assert len(headers) == 1   # the header too (a long recording's time coordinate is read whole for its checks)
@@ -634,15 +634,7 @@ def test_navigate_reads_the_recording_s_header_once_beside_its_check(tmp_path, c
     assert cli.main(["simulate", "navigation", str(rec), "--config", str(ROOT / ".test" / "config.yaml"),
                      "--hours", "0.005"]) == 0
     monkeypatch.setenv(helper.ENV, "off")
-    reads = []
-    read_header = recording.read_header
-
-    def counted(*a, **k):
-        reads.append(1)
-        return read_header(*a, **k)
-
-    monkeypatch.setattr(recording, "read_header", counted)
-    monkeypatch.setattr(navigation_study, "read_header", counted)
+    reads = count_calls(monkeypatch, "read_header", recording, navigation_study)
     code, err = run(capsys, "navigate", rec, "--out", tmp_path / "out.nc", "--output-interval", "1")
     assert code == 0 and (tmp_path / "out.nc").exists(), err
     assert len(reads) == 2, len(reads)
