@@ -286,3 +286,92 @@ def test_the_header_given_back_is_a_copy(tmp_path):
         h = recording.validate(path)
         h.attrs["sensor"] = "changed by the caller"
         assert recording.validate(path).attrs["sensor"] == "test unit"
+
+
+# ------------------------------------------------------------------ the segment table and temperature, read whole
+
+
+def test_unknown_segment_kind(tmp_path):
+    ds = good_dataset()
+    ds["segment_kind"] = (("segment",), np.array(["static", "spinning"], dtype=object), ds["segment_kind"].attrs)
+    refused(ds, tmp_path, "segment_kind", "segment 1 has kind 'spinning'")
+
+
+@pytest.mark.parametrize("bad", [2, -2])
+def test_segment_index_outside_the_table(tmp_path, bad):
+    ds = good_dataset()
+    si = ds["segment_index"].values.copy()
+    si[300] = bad
+    ds["segment_index"] = (("time",), si, ds["segment_index"].attrs)
+    refused(ds, tmp_path, "segment_index", r"values must lie in -1\.\.1")
+
+
+def test_segment_index_on_the_wrong_dimension(tmp_path):
+    ds = good_dataset()
+    ds["segment_index"] = (("segment",), np.array([0, 1]), {})
+    refused(ds, tmp_path, "segment_index", r"dimensions \('segment',\), expected \('time',\)")
+
+
+def test_segment_kind_missing_beside_a_segment_table(tmp_path):
+    refused(good_dataset().drop_vars("segment_kind"), tmp_path, "segment_kind", "segment table present")
+
+
+@pytest.mark.parametrize("how", ["nan", "fill"])
+def test_temperature_with_a_missing_sample(tmp_path, how):
+    """A NaN temperature, and one equal to the variable's _FillValue (written by netCDF4 itself, so the check
+    sees a masked sample as xarray would decode it: NaN), are refused naming the sample."""
+    ds = good_dataset()
+    path = write_netcdf(ds, tmp_path / "bad.nc")
+    import netCDF4
+
+    with netCDF4.Dataset(path, "a") as nc:
+        v = nc.variables["temperature"]
+        v.set_auto_mask(False)
+        v[123] = np.nan if how == "nan" else v.getncattr("_FillValue")
+    for fn in (recording.validate, recording.load):
+        with pytest.raises(recording.RecordingError, match="NaN or Inf at sample 123") as ei:
+            fn(path)
+        assert ei.value.variable == "temperature"
+
+
+def test_values_read_without_xarray_decode_as_xarray_does(tmp_path):
+    """float_values / string_values (the check's reading with netCDF4 alone) against xarray's own decoding: a
+    packed variable (scale_factor, add_offset) with _FillValue and missing_value samples, and strings."""
+    import netCDF4
+
+    from calib.io.netcdf import float_values, string_values
+
+    path = tmp_path / "packed.nc"
+    with netCDF4.Dataset(path, "w") as nc:
+        nc.createDimension("n", 6)
+        v = nc.createVariable("packed", "i2", ("n",), fill_value=-999)
+        v.setncatts({"scale_factor": 0.5, "add_offset": 10.0, "missing_value": np.int16(-998)})
+        v.set_auto_maskandscale(False)
+        v[:] = np.array([0, 1, -999, 7, -998, 100], np.int16)
+        s = nc.createVariable("names", str, ("n",))
+        s[:] = np.array(["static", "rotation", "a", "", "b c", "static"], dtype=object)
+    with pytest.warns(xr.SerializationWarning, match="multiple fill values"), \
+            xr.open_dataset(path, engine="netcdf4") as ds:
+        want_f, want_s = ds["packed"].values, [str(x) for x in ds["names"].values]
+    with netCDF4.Dataset(path) as nc:
+        got_f, got_s = float_values(nc.variables["packed"]), string_values(nc.variables["names"])
+    np.testing.assert_array_equal(got_f, want_f)   # NaN where xarray has NaN
+    np.testing.assert_array_equal(got_f, [10.0, 10.5, np.nan, 13.5, np.nan, 60.0])
+    assert got_s == want_s
+
+
+def test_the_check_of_a_recording_imports_neither_xarray_nor_pandas(tmp_path):
+    """The whole check of a recording (header, segment table, every sample, plausibility -- what calib diagnose's
+    and calib navigate's helper runs, and calib validate) without xarray and pandas: their import is 0.3 s of
+    every such process. Run in a fresh interpreter; fails if any module on the path imports them."""
+    import subprocess
+    import sys
+
+    path = recording.write(good_dataset(2), tmp_path / "ok.nc")
+    code = ("import sys\nfrom calib.cli import _input_check\n"
+            f"key, h, warnings = _input_check({str(path)!r}, True, 'recording')\n"
+            "assert h.n_samples == %d, h.n_samples\n"
+            "print(sorted(m for m in ('xarray', 'pandas') if m in sys.modules))\n" % N)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"

@@ -12,12 +12,16 @@ import json
 import re
 import subprocess
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import netCDF4
-import xarray as xr
+import numpy as np
 
 from calib.io.atomic import atomic_path, utf8_name
 from calib import __version__
+
+if TYPE_CHECKING:   # xarray is imported by the functions that use it: a process that only checks files never does
+    import xarray as xr
 
 ENGINE = "netcdf4"
 #: the CF version every file declares in its ``Conventions`` attribute (with the file's own format after it)
@@ -38,6 +42,20 @@ def conventions(attrs) -> str:
     conv = attrs.get("Conventions", attrs.get("conventions", ""))
     names = [c for c in re.split(r"[ ,]+", str(conv)) if c and not c.startswith("CF-")]
     return names[0] if names else ""
+
+
+def float_values(var) -> np.ndarray:
+    """A netCDF variable's values as float64 as xarray decodes them by default: ``scale_factor`` / ``add_offset``
+    applied and the samples marked missing (``_FillValue``, ``missing_value``) as NaN. For the checks that read a
+    few variables whole without xarray (:func:`calib.io.recording.validate`): a process that only checks a file
+    does not import xarray and pandas (0.3 s)."""
+    return np.ma.filled(np.ma.asarray(var[:], dtype=np.float64), np.nan)
+
+
+def string_values(var) -> list:
+    """A netCDF string variable's values as a list of ``str`` (variable-length strings, or a character array with
+    an ``_Encoding`` attribute, as xarray decodes them)."""
+    return [str(v) for v in var[:]]
 
 
 def cf_dataset(ds: xr.Dataset) -> xr.Dataset:

@@ -35,15 +35,19 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import netCDF4
 import numpy as np
-import xarray as xr
 
 from calib.core import earth
 from calib.core.errors import InputError
 from calib.io.atomic import atomic_path, utf8_name
-from calib.io.netcdf import CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, internal_units, write_netcdf
+from calib.io.netcdf import (CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, float_values, internal_units,
+                             string_values, write_netcdf)
+
+if TYPE_CHECKING:   # imported where a dataset is made: checking a file (validate) needs neither xarray nor pandas
+    import xarray as xr
 
 CONVENTIONS = "calib-recording-1"
 AXES = ("x", "y", "z")
@@ -415,33 +419,34 @@ class _OnChunkError(Exception):
 
 
 def _validate_body(path, h: Header, on_chunk=None) -> None:
-    with xr.open_dataset(path, engine="netcdf4") as ds:
-        if "segment_index" in ds:
-            si = ds["segment_index"]
-            if si.dims != ("time",):
-                raise RecordingError(path, "segment_index", f"dimensions {si.dims}, expected ('time',)")
-            nseg = ds.sizes.get("segment", 0)
-            vals = np.asarray(si.values)
+    with netCDF4.Dataset(path, "r") as nc:   # the few whole variables, read as xarray decodes them
+        var = nc.variables
+        nseg = len(nc.dimensions["segment"]) if "segment" in nc.dimensions else 0
+        if "segment_index" in var:
+            si = var["segment_index"]
+            if si.dimensions != ("time",):
+                raise RecordingError(path, "segment_index", f"dimensions {si.dimensions}, expected ('time',)")
+            vals = float_values(si)
             if vals.size and (vals.max() >= nseg or vals.min() < -1):
                 raise RecordingError(path, "segment_index", f"values must lie in -1..{nseg - 1}")
-        if "segment" in ds.dims:
+        if "segment" in nc.dimensions:
             for name in ("segment_kind",):
-                if name not in ds:
+                if name not in var:
                     raise RecordingError(path, name, "segment table present but variable missing")
-            kinds = [str(k) for k in ds["segment_kind"].values]
+            kinds = string_values(var["segment_kind"])
             for i, k in enumerate(kinds):
                 if k not in ("static", "rotation"):
                     raise RecordingError(path, "segment_kind", f"segment {i} has kind {k!r}")
-            if "rotation_rate" in ds:
-                rr = ds["rotation_rate"].values
+            if "rotation_rate" in var:
+                rr = float_values(var["rotation_rate"])
                 for i, k in enumerate(kinds):
                     if k == "rotation" and not (np.isfinite(rr[i]) and rr[i] != 0.0):
                         raise RecordingError(path, "rotation_rate", f"rotation segment {i} has no rate ({rr[i]})",
                                              "give the table rate in deg/s, signed by the right-hand rule")
             elif "rotation" in kinds:
                 raise RecordingError(path, "rotation_rate", "rotation segments present but no rates")
-        if "temperature" in ds:
-            _check_finite(path, "temperature", ds["temperature"].values)
+        if "temperature" in var:
+            _check_finite(path, "temperature", float_values(var["temperature"]))
     with netCDF4.Dataset(path, "r") as nc:
         fills = {v: fill_values(nc.variables[v]) for v in ("accel", "gyro")}
     for start, acc, gyr in iter_raw_chunks(path, h):
@@ -530,6 +535,8 @@ def load(path, validate_all: bool = True) -> xr.Dataset:
 
     Long files without a time coordinate get one computed from ``t0_s`` and ``sample_rate_hz``.
     """
+    import xarray as xr
+
     h = validate(path) if validate_all else read_header(path)
     try:
         with xr.open_dataset(path, engine="netcdf4") as ds:
@@ -566,6 +573,8 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
     ``segments`` is a dict of per-segment arrays: ``segment_kind``, ``segment_label``, ``rotation_axis``
     (n, 3), ``rotation_rate`` (n,) deg/s, ``nominal_attitude`` (n, 3, 3).
     """
+    import xarray as xr
+
     accel = np.asarray(accel)
     gyro = np.asarray(gyro)
     n = accel.shape[0]

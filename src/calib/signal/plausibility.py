@@ -28,13 +28,13 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import netCDF4
 import numpy as np
-import xarray as xr
 
 from calib.core import earth
 from calib.core.errors import InputError, ResultCheckError
 from calib.io import recording
-from calib.io.netcdf import conventions
+from calib.io.netcdf import conventions, float_values, string_values
 
 ABSURD_ACCEL_G = 1000.0
 ABSURD_GYRO_DEG_S = 1.0e4
@@ -258,18 +258,17 @@ def _table_rotation_check(refuse, res, path, h, fg):
     rotation over each rotation segment (magnitude of the integral of the rate vector, in the declared units and
     clock) against the angle the table turned. A common ratio near 180/pi, pi/180, 3600, 2 or 1/2 names the
     likely mistake (exit 2 before any fit)."""
-    import xarray as xr
-
     try:
-        with xr.open_dataset(path, engine="netcdf4") as ds:
-            if not {"table_angle", "segment_index", "segment_kind"} <= set(ds.variables):
+        with netCDF4.Dataset(path, "r") as nc:   # read as xarray decodes them, without importing it
+            var = nc.variables
+            if not {"table_angle", "segment_index", "segment_kind"} <= set(var):
                 return
-            kinds = [str(k) for k in ds["segment_kind"].values]
+            kinds = string_values(var["segment_kind"])
             if "rotation" not in kinds:
                 return
-            seg = np.asarray(ds["segment_index"].values)
-            ang = np.asarray(ds["table_angle"].values, dtype=float)
-            gyr = np.asarray(ds["gyro"].values, dtype=float)
+            seg = float_values(var["segment_index"])
+            ang = float_values(var["table_angle"])
+            gyr = float_values(var["gyro"])
     except (OSError, KeyError, ValueError):
         return
     dt = 1.0 / h.sample_rate_hz
@@ -481,6 +480,8 @@ def check_calibration_file(path) -> dict:
     paper vectors ``accel`` and ``gyro`` (12 finite parameters each on ``parameter``). A recording, a field
     calibration or any other file is refused (:class:`calib.core.errors.InputError`). Returns the vectors."""
     fix = "give the default_calibration.nc written by 'calib calibrate --out DIR'"
+    import xarray as xr
+
     try:
         with xr.open_dataset(path, engine="netcdf4") as d:
             kind = ("a recording" if conventions(d.attrs) == recording.CONVENTIONS else
@@ -505,6 +506,8 @@ def check_calibration_result(nc_path, json_path=None) -> None:
     deg/h, whatever the recording's units), and no parameter pinned on its search bound (``on_bound`` of
     ``default_calibration.json``: the optimum lies outside Liu 2021's Tables 1/3).
     :class:`calib.core.errors.ResultCheckError` (exit 3) if implausible."""
+    import xarray as xr
+
     with xr.open_dataset(nc_path, engine="netcdf4") as d:
         vecs = {s: np.asarray(d[s].values, dtype=float) for s in ("accel", "gyro") if s in d}
     problems = []
