@@ -208,9 +208,9 @@ def test_the_residual_figure_starts_once_the_final_model_is_chosen(tmp_path, mon
     events = []
     submit, search = helper.Helper.submit, analysis.open_search
 
-    def submit_and_note(self, jobs):
+    def submit_and_note(self, jobs, **kw):
         events.extend(("submit", args[0]) for name, args in jobs if name == "calib.figures.diagnosis:render")
-        return submit(self, jobs)
+        return submit(self, jobs, **kw)
 
     def note_and_search(prob, final):
         events.append(("open search", None))
@@ -235,3 +235,30 @@ def test_the_residual_figure_starts_once_the_final_model_is_chosen(tmp_path, mon
     assert (early.read_bytes() == (plain / "residuals_before_after.png").read_bytes()) is not change
     if change:
         assert early.read_bytes() == (tmp_path / "alone" / "residuals_before_after.png").read_bytes()
+
+
+def test_a_job_beside_the_helper_runs_while_the_helper_works(capsys):
+    """A job submitted beside=True runs in a process forked from the helper as soon as the helper takes it, and the
+    helper goes on with the next jobs meanwhile: two beside jobs sleeping 0.8 s, then a helper job sleeping 0.8 s,
+    are all done in well under the 1.6 s that any two of them take one after the other. Its value, its printed output and its exception come back as a helper
+    job's do; a beside process that dies is a HelperError of that job only, the helper serves on."""
+    import time
+
+    with helper.running() as h:
+        h.run("os:getpid")   # the helper is up
+        t0 = time.perf_counter()
+        first = h.submit([("time:sleep", (0.8,)), ("os:getpid", ())], beside=True)
+        second = h.submit([("time:sleep", (0.8,))], beside=True)
+        own = h.submit([("time:sleep", (0.8,))])
+        assert h.result(own) == [None] and h.result(second) == [None]
+        assert h.result(first)[0] is None
+        assert time.perf_counter() - t0 < 1.4
+        pid = h.result(h.submit([("os:getpid", ())], beside=True))[0]
+        assert pid not in (h.pid, os.getpid())   # its own process
+        assert h.result(h.submit([("builtins:print", ("printed beside",))], beside=True)) == [None]
+        assert capsys.readouterr().out == "printed beside\n"
+        with pytest.raises(json.JSONDecodeError):
+            h.result(h.submit([("json:loads", ("{",))], beside=True))
+        with pytest.raises(helper.HelperError, match="ended without answering"):
+            h.result(h.submit([("os:_exit", (3,))], beside=True))
+        assert h.run("os:getpid") == h.pid   # the helper itself is still serving

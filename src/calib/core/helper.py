@@ -18,12 +18,18 @@ navigates (its output is written once that check passed). The command's own proc
   SIGINT / SIGTERM of the command; if the command itself is killed, the helper sees its request pipe close and
   exits.
 
-Jobs are named ``"module:function"`` and their arguments are pickled (plain data, not the command's objects).
+Jobs are named ``"module:function"`` and their arguments are pickled (plain data, not the command's objects). The
+helper runs a job itself, in the order submitted (an input check; the plotting library's warm-up, which every later
+job inherits), or -- submitted ``beside=True`` -- in a process forked from it while it goes on reading requests (a
+figure: the residual figure starts as soon as its data are known, not behind the Allan figure still being
+drawn). A job beside starts when the helper takes it, after the jobs before it that the helper runs itself. The reply pipes hold a whole figure (1 MiB where Linux allows), so a job never waits for
+the command to read its reply.
 ``CALIB_HELPER=off`` (or a platform without ``os.fork``) runs everything in the command's process, as before.
 """
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import importlib
 import io
 import os
@@ -76,6 +82,20 @@ def running():
 # ------------------------------------------------------------------------------------------------ wire format
 
 
+#: the capacity asked for the reply pipes: a figure's PNG (80-200 kB) fits, so whoever answers never blocks until
+#: the command reads (the default 64 kB made the helper wait for the command to finish its analysis)
+PIPE_BYTES = 1 << 20
+
+
+def _pipe():
+    """``os.pipe()`` with :data:`PIPE_BYTES` of capacity where the platform allows (Linux ``F_SETPIPE_SZ``, up to
+    ``/proc/sys/fs/pipe-max-size``); the default capacity otherwise (only slower)."""
+    r, w = os.pipe()
+    with contextlib.suppress(AttributeError, OSError):
+        fcntl.fcntl(w, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+    return r, w
+
+
 def _write_all(fd, data: bytes) -> None:
     view = memoryview(data)
     while view:
@@ -115,7 +135,7 @@ class Helper:
 
     def __init__(self):
         req_r, req_w = os.pipe()
-        rep_r, rep_w = os.pipe()
+        rep_r, rep_w = _pipe()
         sys.stdout.flush()
         sys.stderr.flush()
         # no signal between the fork and the helper's own dispositions: a Ctrl-C there must not run the command's
@@ -145,15 +165,17 @@ class Helper:
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
-    def submit(self, calls) -> int:
+    def submit(self, calls, *, beside: bool = False) -> int:
         """Queue ``calls`` -- a list of ``(target, args)``, run at the same time when several -- and return the job
-        id whose :meth:`result` is the list of their values. Replies arriving meanwhile are read (no deadlock on
-        full pipes)."""
+        id whose :meth:`result` is the list of their values. ``beside``: run in a process forked from the helper
+        when the helper takes it (after the jobs before it), while the helper takes the next jobs (for work that changes nothing the later jobs need, e.g. a
+        figure); else by the helper itself after the jobs before it. Replies arriving meanwhile are read (no
+        deadlock on full pipes)."""
         if not self.alive:
             raise HelperError("the helper process has ended")
         jid = self._next
         self._next += 1
-        data = memoryview(_frame((jid, [(t, tuple(a)) for t, a in calls])))
+        data = memoryview(_frame((jid, [(t, tuple(a)) for t, a in calls], bool(beside))))
         while data:
             rd, wr, _ = select.select([self._r], [self._w], [])
             if rd:
@@ -243,22 +265,68 @@ def _exception(value) -> BaseException:
 def _serve(req_r, rep_w, mask):
     code = 0
     _SERVING[:] = [req_r, rep_w]
+    beside = {}   # read end of a job run beside -> (its process, job id, number of calls)
     try:
         with contextlib.suppress(OSError):
             os.setpgid(0, 0)   # its own group: the terminal's Ctrl-C goes to the command, which ends the helper
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
-        while True:
-            msg = _recv(req_r)
-            if msg is None:   # the command closed its end (or died): nothing more to do
-                break
-            jid, calls = msg
-            _write_all(rep_w, _frame((jid, _run_calls(calls))))
+        open_ = True
+        while open_ or beside:
+            ready, _, _ = select.select(([req_r] if open_ else []) + list(beside), [], [])
+            for fd in ready:
+                if fd != req_r:   # a job run beside has answered (or died): its reply goes to the command
+                    pid, jid, ncalls = beside.pop(fd)
+                    _write_all(rep_w, _reply_of(fd, pid, jid, ncalls))
+                    continue
+                msg = _recv(req_r)
+                if msg is None:   # the command closed its end (or died): nothing more to take
+                    open_ = False
+                    continue
+                jid, calls, aside = msg
+                if aside:
+                    fd_kid, pid = _start_beside(calls, jid, beside)
+                    beside[fd_kid] = (pid, jid, len(calls))
+                else:
+                    _write_all(rep_w, _frame((jid, _run_calls(calls))))
     except BaseException:  # noqa: BLE001 - the command sees the pipe close and reports it
         code = 1
     finally:
         os._exit(code)
+
+
+def _start_beside(calls, jid, beside):
+    """Fork the process of a job run beside the helper: it runs ``calls`` (:func:`_run_calls`) and writes its
+    reply frame to a pipe of its own, which the helper forwards."""
+    r, w = _pipe()
+    pid = os.fork()
+    if pid == 0:
+        code = 0
+        try:
+            for fd in [r, *_SERVING, *beside]:
+                os.close(fd)
+            _SERVING[:] = []
+            _write_all(w, _frame((jid, _run_calls(calls))))
+        except BaseException:  # noqa: BLE001 - the helper sees the pipe close
+            code = 1
+        finally:
+            os._exit(code)
+    os.close(w)
+    return r, pid
+
+
+def _reply_of(fd, pid, jid, ncalls) -> bytes:
+    """The reply frame a job run beside wrote (forwarded as it is), or one naming how its process ended."""
+    head = _read_exact(fd, _HEADER.size)
+    body = None if head is None else _read_exact(fd, _HEADER.unpack(head)[0])
+    os.close(fd)
+    _, status = os.waitpid(pid, 0)
+    if body is not None:
+        return head + body
+    lost = (False, (None, "HelperError", f"the process of job {jid} ended without answering ({_describe(status)})",
+                    ""), "")
+    return _frame((jid, [lost] * ncalls))
 
 
 def _run_calls(calls):

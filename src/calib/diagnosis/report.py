@@ -232,7 +232,9 @@ def start_figures(prob: Problem, out_dir, st, fits=None) -> None:
                         next(j for j in _figure_jobs(prob, fits) if j[1] == "residual"))
     early = dict(getattr(prob, "early_figures", None) or {})
     with contextlib.suppress(helper.HelperError):
-        early[name] = (copy.deepcopy(data), h.submit([("calib.figures.diagnosis:render", (kind, data))]))
+        # drawn beside the helper: the residual figure need not wait for the Allan figure still being drawn
+        jid = h.submit([("calib.figures.diagnosis:render", (kind, data))], beside=True)
+        early[name] = (copy.deepcopy(data), jid)
     prob.early_figures = early
 
 
@@ -274,7 +276,8 @@ def write_figures(prob: Problem, fits, out_dir) -> list:
                 here = {name: figs.render(kind, data) for name, kind, data in now}
                 now = []
             if now:
-                jid = h.submit([("calib.figures.diagnosis:render", (kind, data)) for _, kind, data in now])
+                jid = h.submit([("calib.figures.diagnosis:render", (kind, data)) for _, kind, data in now],
+                               beside=True)
                 pending.update({name: (jid, i) for i, (name, _, _) in enumerate(now)})
             results = {}
             for name, _, _ in jobs:   # collected in the figures' order (an exception of the first comes first)
