@@ -1,4 +1,4 @@
-"""The helper process of ``calib diagnose`` (calib.core.helper): the input checks and the figures run beside the
+"""The helper process of ``calib diagnose`` and ``calib navigate`` (calib.core.helper): the input checks and the figures run beside the
 command, which alone writes files. Same outputs with and without it, the plotting library never loaded by the
 command itself, exceptions and printed lines handed back, and no process or partial file left behind whatever
 ends the command."""
@@ -262,3 +262,25 @@ def test_a_job_beside_the_helper_runs_while_the_helper_works(capsys):
         with pytest.raises(helper.HelperError, match="ended without answering"):
             h.result(h.submit([("os:_exit", (3,))], beside=True))
         assert h.run("os:getpid") == h.pid   # the helper itself is still serving
+
+
+def test_navigate_checks_the_samples_from_its_start(tmp_path):
+    """``calib navigate`` hands the check of every sample to its helper before it imports the navigation (numba,
+    xarray, scipy: ~0.7 s of one core), so the check -- the longer of the two on a 240 h recording -- starts at once on
+    the second core. In a fresh interpreter, the check job notes what its process had imported: neither the
+    navigation nor numba nor xarray (the helper was forked before them); the command still navigates and writes."""
+    rec = tmp_path / "nav.nc"
+    assert cli.main(["simulate", "navigation", str(rec), "--config", str(ROOT / ".test" / "config.yaml"),
+                     "--hours", "0.002"]) == 0
+    code = ("import sys\nimport calib.cli as c\norig = c._input_check\n"
+            "def probe(*a):\n"
+            "    print('helper had:', sorted(m for m in ('calib.studies.navigation', 'numba', 'xarray')"
+            " if m in sys.modules))\n"
+            "    return orig(*a)\n"
+            "c._input_check = probe\n"
+            f"sys.exit(c.main(['navigate', {str(rec)!r}, '--out', {str(tmp_path / 'out.nc')!r}]))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, helper.ENV: "on"})
+    assert out.returncode == 0, out.stderr
+    assert "helper had: []" in out.stdout + out.stderr, out.stdout + out.stderr
+    assert (tmp_path / "out.nc").exists()

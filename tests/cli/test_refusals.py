@@ -520,7 +520,11 @@ def test_a_file_name_that_is_not_utf8_is_refused_by_name_with_the_fix(tmp_path, 
 def test_units_and_calibration_that_do_not_pair_are_refused_before_any_sample_is_read(tmp_path, capsys, monkeypatch,
                                                                                       with_calibration):
     """A recording in physical units given a count calibration, or raw counts given none: refused (exit 2) with the
-    command's own fix, before the check of every sample runs (12-21 s on a 240 h recording before)."""
+    command's own fix at once, without waiting for the check of every sample (12-21 s on a 240 h recording before).
+    The command's helper starts that check at the command's start, beside the imports; here it would take 60 s (and
+    the command's own process reads no sample): the refusal comes within seconds and the check is ended with it."""
+    import time
+
     import xarray as xr
 
     from calib.core.triad import liu2021_model
@@ -538,13 +542,19 @@ def test_units_and_calibration_that_do_not_pair_are_refused_before_any_sample_is
         extra, fix = [], "calib navigate --calibration default_calibration.nc"
     capsys.readouterr()
 
+    here = os.getpid()
+
     def no_samples(*a, **k):
-        raise AssertionError("the samples were read before the refusal")
+        if os.getpid() == here:
+            raise AssertionError("the command read samples before the refusal")
+        time.sleep(60)   # the helper's check of every sample: far longer than the refusal may take
 
     monkeypatch.setattr(recording, "_validate_body", no_samples)
     monkeypatch.setattr(recording, "iter_raw_chunks", no_samples)
+    t0 = time.monotonic()
     code, err = run(capsys, "navigate", rec, *extra, "--out", tmp_path / "out.nc")
     assert code == 2 and fix in err and "calibration" in err, err
+    assert time.monotonic() - t0 < 30, "the refusal waited for the check of the samples"
     assert not (tmp_path / "out.nc").exists()
 
 

@@ -254,22 +254,27 @@ def cmd_fieldcal(a):
 def cmd_navigate(a):
     from calib.core import helper
     from calib.io import recording
-    from calib.signal import plausibility
-    from calib.studies import navigation as navigation_study
 
     _positive(a.nav_rate, "--nav-rate")
     _positive(a.output_interval, "--output-interval")
     if a.calibration:
-        plausibility.check_calibration_file(input_file(a.calibration, "calibration file"))
+        input_file(a.calibration, "calibration file")
     _output_file(a.out, "navigation output")
-    # what needs no sample first: a wrong pairing of units and calibration is named at once, not after the check of
-    # every sample of a long recording (4-5 s for 240 h at 100 Hz)
-    header = navigation_study.check_navigation_inputs(input_file(a.recording, "recording"), a.calibration)
-    nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
-    # every sample is checked beside the navigation, by the command's helper process (the second core); the result
-    # is written only once that check passed, and its refusal comes before anything the navigation raised
+    input_file(a.recording, "recording")
+    # every sample is checked by the command's helper process (the second core) from the start, beside the imports,
+    # the early checks below and the navigation; the result is written only once that check passed, and its refusal
+    # comes before anything the navigation raised (an early refusal below comes first: the check is then dropped)
     with recording.reuse_validation(), helper.running() as h:
         job = _start_input_check(h, a.recording, a.force, "recording") if h is not None else None
+        from calib.signal import plausibility
+        from calib.studies import navigation as navigation_study
+
+        if a.calibration:
+            plausibility.check_calibration_file(a.calibration)
+        # what needs no sample first: a wrong pairing of units and calibration is named at once, not after the check
+        # of every sample of a long recording (4-5 s for 240 h at 100 Hz)
+        header = navigation_study.check_navigation_inputs(a.recording, a.calibration)
+        nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
         if job is None:
             _recording(a.recording, a.force)
         pending = [job] if job is not None else []
