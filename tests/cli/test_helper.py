@@ -1,7 +1,7 @@
-"""The helper process of ``calib diagnose`` and ``calib navigate`` (calib.core.helper): the input checks and the figures run beside the
-command, which alone writes files. Same outputs with and without it, the plotting library never loaded by the
-command itself, exceptions and printed lines handed back, and no process or partial file left behind whatever
-ends the command."""
+"""The helper process of ``calib diagnose`` and ``calib navigate`` (calib.core.helper): the input checks and the
+figures run beside the command, which alone writes files. Same outputs with and without it, the plotting library
+never loaded by the command itself, exceptions and printed lines handed back, and no process or partial file left
+behind whatever ends the command."""
 from __future__ import annotations
 
 import json
@@ -239,9 +239,10 @@ def test_the_residual_figure_starts_once_the_final_model_is_chosen(tmp_path, mon
 
 def test_a_job_beside_the_helper_runs_while_the_helper_works(capsys):
     """A job submitted beside=True runs in a process forked from the helper as soon as the helper takes it, and the
-    helper goes on with the next jobs meanwhile: two beside jobs sleeping 0.8 s, then a helper job sleeping 0.8 s,
-    are all done in well under the 1.6 s that any two of them take one after the other. Its value, its printed output and its exception come back as a helper
-    job's do; a beside process that dies is a HelperError of that job only, the helper serves on."""
+    helper goes on with the next jobs meanwhile: two beside jobs sleeping 0.8 s, then a helper job sleeping 0.8 s, are all
+    done in well under the 1.6 s that any two of them take one after the other. Its value, its printed output and
+    its exception come back as a helper job's do; a beside process that dies is a HelperError of that job only, the
+    helper serves on."""
     import time
 
     with helper.running() as h:

@@ -21,9 +21,9 @@ navigates (its output is written once that check passed). The command's own proc
 Jobs are named ``"module:function"`` and their arguments are pickled (plain data, not the command's objects). The
 helper runs a job itself, in the order submitted (an input check; the plotting library's warm-up, which every later
 job inherits), or -- submitted ``beside=True`` -- in a process forked from it while it goes on reading requests (a
-figure: the residual figure starts as soon as its data are known, not behind the Allan figure still being
-drawn). A job beside starts when the helper takes it, after the jobs before it that the helper runs itself. The reply pipes hold a whole figure (1 MiB where Linux allows), so a job never waits for
-the command to read its reply.
+figure: the residual figure starts as soon as its data are known, not behind the Allan figure still being drawn). A
+job beside starts when the helper takes it, after the jobs before it that the helper runs itself. The reply pipes
+hold a whole figure (1 MiB where Linux allows), so a job never waits for the command to read its reply.
 ``CALIB_HELPER=off`` (or a platform without ``os.fork``) runs everything in the command's process, as before.
 """
 from __future__ import annotations
@@ -167,10 +167,10 @@ class Helper:
 
     def submit(self, calls, *, beside: bool = False) -> int:
         """Queue ``calls`` -- a list of ``(target, args)``, run at the same time when several -- and return the job
-        id whose :meth:`result` is the list of their values. ``beside``: run in a process forked from the helper
-        when the helper takes it (after the jobs before it), while the helper takes the next jobs (for work that changes nothing the later jobs need, e.g. a
-        figure); else by the helper itself after the jobs before it. Replies arriving meanwhile are read (no
-        deadlock on full pipes)."""
+        id whose :meth:`result` is the list of their values. ``beside``: run in a process forked from the helper when the
+        helper takes it (after the jobs before it), while the helper takes the next jobs (for work that changes
+        nothing the later jobs need, e.g. a figure); else by the helper itself after the jobs before it. Replies
+        arriving meanwhile are read (no deadlock on full pipes)."""
         if not self.alive:
             raise HelperError("the helper process has ended")
         jid = self._next
