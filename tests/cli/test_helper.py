@@ -239,8 +239,8 @@ def test_the_residual_figure_starts_once_the_final_model_is_chosen(tmp_path, mon
 
 def test_a_job_beside_the_helper_runs_while_the_helper_works(capsys):
     """A job submitted beside=True runs in a process forked from the helper as soon as the helper takes it, and the
-    helper goes on with the next jobs meanwhile: two beside jobs sleeping 0.8 s, then a helper job sleeping 0.8 s, are all
-    done in well under the 1.6 s that any two of them take one after the other. Its value, its printed output and
+    helper goes on with the next jobs meanwhile: two beside jobs sleeping 0.8 s, then a helper job sleeping 0.8 s, are
+    all done in well under the 1.6 s that any two of them take one after the other. Its value, its printed output and
     its exception come back as a helper job's do; a beside process that dies is a HelperError of that job only, the
     helper serves on."""
     import time

@@ -166,11 +166,11 @@ class Helper:
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
     def submit(self, calls, *, beside: bool = False) -> int:
-        """Queue ``calls`` -- a list of ``(target, args)``, run at the same time when several -- and return the job
-        id whose :meth:`result` is the list of their values. ``beside``: run in a process forked from the helper when the
-        helper takes it (after the jobs before it), while the helper takes the next jobs (for work that changes
-        nothing the later jobs need, e.g. a figure); else by the helper itself after the jobs before it. Replies
-        arriving meanwhile are read (no deadlock on full pipes)."""
+        """Queue ``calls`` -- a list of ``(target, args)``, run at the same time when several -- and return the job id
+        whose :meth:`result` is the list of their values. ``beside``: run in a process forked from the helper when the
+        helper takes it (after the jobs before it), while the helper takes the next jobs (for work that changes nothing
+        the later jobs need, e.g. a figure); else by the helper itself after the jobs before it. Replies arriving
+        meanwhile are read (no deadlock on full pipes)."""
         if not self.alive:
             raise HelperError("the helper process has ended")
         jid = self._next
