@@ -335,11 +335,12 @@ def test_temperature_with_a_missing_sample(tmp_path, how):
 
 
 def test_values_read_without_xarray_decode_as_xarray_does(tmp_path):
-    """float_values / string_values (the check's reading with netCDF4 alone) against xarray's own decoding: a
-    packed variable (scale_factor, add_offset) with _FillValue and missing_value samples, and strings."""
+    """float_values / string_values / index_values (the check's reading with netCDF4 alone) against xarray's own
+    decoding: a packed variable (scale_factor, add_offset) with _FillValue and missing_value samples, strings, and an
+    integer index with a _FillValue sample (-1 where xarray has NaN, in the variable's own integer type)."""
     import netCDF4
 
-    from calib.io.netcdf import float_values, string_values
+    from calib.io.netcdf import float_values, index_values, string_values
 
     path = tmp_path / "packed.nc"
     with netCDF4.Dataset(path, "w") as nc:
@@ -350,14 +351,20 @@ def test_values_read_without_xarray_decode_as_xarray_does(tmp_path):
         v[:] = np.array([0, 1, -999, 7, -998, 100], np.int16)
         s = nc.createVariable("names", str, ("n",))
         s[:] = np.array(["static", "rotation", "a", "", "b c", "static"], dtype=object)
+        i = nc.createVariable("index", "i4", ("n",), fill_value=-2147483647)
+        i[:] = np.ma.masked_array([0, 0, 1, 1, 5, -1], mask=[0, 0, 0, 0, 1, 0])
     with pytest.warns(xr.SerializationWarning, match="multiple fill values"), \
             xr.open_dataset(path, engine="netcdf4") as ds:
         want_f, want_s = ds["packed"].values, [str(x) for x in ds["names"].values]
+        want_i = ds["index"].values
     with netCDF4.Dataset(path) as nc:
         got_f, got_s = float_values(nc.variables["packed"]), string_values(nc.variables["names"])
+        got_i = index_values(nc.variables["index"])
     np.testing.assert_array_equal(got_f, want_f)   # NaN where xarray has NaN
     np.testing.assert_array_equal(got_f, [10.0, 10.5, np.nan, 13.5, np.nan, 60.0])
     assert got_s == want_s
+    assert got_i.dtype == np.int32 and got_i.tolist() == [0, 0, 1, 1, -1, -1]
+    np.testing.assert_array_equal(np.where(np.isnan(want_i), -1, want_i), got_i)
 
 
 def test_the_check_of_a_recording_imports_neither_xarray_nor_pandas(tmp_path):

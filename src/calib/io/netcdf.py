@@ -52,6 +52,13 @@ def float_values(var) -> np.ndarray:
     return np.ma.filled(np.ma.asarray(var[:], dtype=np.float64), np.nan)
 
 
+def index_values(var, missing: int = -1) -> np.ndarray:
+    """An integer netCDF variable's values in their own integer type (no float copy: a segment index of a long
+    recording is one value per sample), the samples marked missing as ``missing`` (-1: no segment)."""
+    v = var[:]
+    return np.ma.filled(v, missing) if np.ma.is_masked(v) else np.asarray(np.ma.getdata(v))
+
+
 def string_values(var) -> list:
     """A netCDF string variable's values as a list of ``str`` (variable-length strings, or a character array with
     an ``_Encoding`` attribute, as xarray decodes them)."""

@@ -43,8 +43,8 @@ import numpy as np
 from calib.core import earth
 from calib.core.errors import InputError
 from calib.io.atomic import atomic_path, utf8_name
-from calib.io.netcdf import (CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, float_values, internal_units,
-                             string_values, write_netcdf)
+from calib.io.netcdf import (CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, float_values, index_values,
+                             internal_units, string_values, write_netcdf)
 
 if TYPE_CHECKING:   # imported where a dataset is made: checking a file (validate) needs neither xarray nor pandas
     import xarray as xr
@@ -426,7 +426,7 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
             si = var["segment_index"]
             if si.dimensions != ("time",):
                 raise RecordingError(path, "segment_index", f"dimensions {si.dimensions}, expected ('time',)")
-            vals = float_values(si)
+            vals = index_values(si)
             if vals.size and (vals.max() >= nseg or vals.min() < -1):
                 raise RecordingError(path, "segment_index", f"values must lie in -1..{nseg - 1}")
         if "segment" in nc.dimensions:

@@ -34,7 +34,7 @@ import numpy as np
 from calib.core import earth
 from calib.core.errors import InputError, ResultCheckError
 from calib.io import recording
-from calib.io.netcdf import conventions, float_values, string_values
+from calib.io.netcdf import conventions, float_values, index_values, string_values
 
 ABSURD_ACCEL_G = 1000.0
 ABSURD_GYRO_DEG_S = 1.0e4
@@ -266,7 +266,7 @@ def _table_rotation_check(refuse, res, path, h, fg):
             kinds = string_values(var["segment_kind"])
             if "rotation" not in kinds:
                 return
-            seg = float_values(var["segment_index"])
+            seg = index_values(var["segment_index"])
             ang = float_values(var["table_angle"])
             gyr = float_values(var["gyro"])
     except (OSError, KeyError, ValueError):
