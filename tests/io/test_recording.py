@@ -316,10 +316,13 @@ def test_segment_kind_missing_beside_a_segment_table(tmp_path):
     refused(good_dataset().drop_vars("segment_kind"), tmp_path, "segment_kind", "segment table present")
 
 
-@pytest.mark.parametrize("how", ["nan", "fill"])
-def test_temperature_with_a_missing_sample(tmp_path, how):
+@pytest.mark.parametrize("how, slice_", [("nan", None), ("fill", None), ("nan", 50), ("fill", 7)])
+def test_temperature_with_a_missing_sample(tmp_path, monkeypatch, how, slice_):
     """A NaN temperature, and one equal to the variable's _FillValue (written by netCDF4 itself, so the check
-    sees a masked sample as xarray would decode it: NaN), are refused naming the sample."""
+    sees a masked sample as xarray would decode it: NaN), are refused naming the sample -- also when the check reads
+    the temperature in slices (``slice_`` samples at a time) and the sample lies in a later slice."""
+    if slice_ is not None:
+        monkeypatch.setattr(recording, "TEMPERATURE_SLICE", slice_)
     ds = good_dataset()
     path = write_netcdf(ds, tmp_path / "bad.nc")
     import netCDF4

@@ -44,12 +44,12 @@ def conventions(attrs) -> str:
     return names[0] if names else ""
 
 
-def float_values(var) -> np.ndarray:
+def float_values(var, index=slice(None)) -> np.ndarray:
     """A netCDF variable's values as float64 as xarray decodes them by default: ``scale_factor`` / ``add_offset``
     applied and the samples marked missing (``_FillValue``, ``missing_value``) as NaN. For the checks that read a
     few variables whole without xarray (:func:`calib.io.recording.validate`): a process that only checks a file
-    does not import xarray and pandas (0.3 s)."""
-    return np.ma.filled(np.ma.asarray(var[:], dtype=np.float64), np.nan)
+    does not import xarray and pandas (0.3 s). ``index``: the part to read (default: all)."""
+    return np.ma.filled(np.ma.asarray(var[index], dtype=np.float64), np.nan)
 
 
 def index_values(var, missing: int = -1) -> np.ndarray:

@@ -418,6 +418,10 @@ class _OnChunkError(Exception):
     """An exception of a validation's ``on_chunk``, carried out of the checks that name a failure the file's."""
 
 
+#: the temperature samples :func:`validate` reads at a time
+TEMPERATURE_SLICE = 1_000_000
+
+
 def _validate_body(path, h: Header, on_chunk=None) -> None:
     with netCDF4.Dataset(path, "r") as nc:   # the few whole variables, read as xarray decodes them
         var = nc.variables
@@ -446,7 +450,12 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
             elif "rotation" in kinds:
                 raise RecordingError(path, "rotation_rate", "rotation segments present but no rates")
         if "temperature" in var:
-            _check_finite(path, "temperature", float_values(var["temperature"]))
+            tv = var["temperature"]
+            if tv.ndim == 1:   # one value per sample: read in slices, memory flat however long the record
+                for i0 in range(0, tv.shape[0], TEMPERATURE_SLICE):
+                    _check_finite(path, "temperature", float_values(tv, slice(i0, i0 + TEMPERATURE_SLICE)), i0)
+            else:
+                _check_finite(path, "temperature", float_values(tv))
     with netCDF4.Dataset(path, "r") as nc:
         fills = {v: fill_values(nc.variables[v]) for v in ("accel", "gyro")}
     for start, acc, gyr in iter_raw_chunks(path, h):
