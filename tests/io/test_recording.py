@@ -297,8 +297,11 @@ def test_unknown_segment_kind(tmp_path):
     refused(ds, tmp_path, "segment_kind", "segment 1 has kind 'spinning'")
 
 
-@pytest.mark.parametrize("bad", [2, -2])
-def test_segment_index_outside_the_table(tmp_path, bad):
+@pytest.mark.parametrize("bad, slice_", [(2, None), (-2, None), (2, 64), (-2, 299)])
+def test_segment_index_outside_the_table(tmp_path, monkeypatch, bad, slice_):
+    """Refused wherever it lies, also when the check reads the index in slices of ``slice_`` samples."""
+    if slice_ is not None:
+        monkeypatch.setattr(recording, "PER_SAMPLE_SLICE", slice_)
     ds = good_dataset()
     si = ds["segment_index"].values.copy()
     si[300] = bad
@@ -322,7 +325,7 @@ def test_temperature_with_a_missing_sample(tmp_path, monkeypatch, how, slice_):
     sees a masked sample as xarray would decode it: NaN), are refused naming the sample -- also when the check reads
     the temperature in slices (``slice_`` samples at a time) and the sample lies in a later slice."""
     if slice_ is not None:
-        monkeypatch.setattr(recording, "TEMPERATURE_SLICE", slice_)
+        monkeypatch.setattr(recording, "PER_SAMPLE_SLICE", slice_)
     ds = good_dataset()
     path = write_netcdf(ds, tmp_path / "bad.nc")
     import netCDF4

@@ -52,10 +52,11 @@ def float_values(var, index=slice(None)) -> np.ndarray:
     return np.ma.filled(np.ma.asarray(var[index], dtype=np.float64), np.nan)
 
 
-def index_values(var, missing: int = -1) -> np.ndarray:
+def index_values(var, index=slice(None), missing: int = -1) -> np.ndarray:
     """An integer netCDF variable's values in their own integer type (no float copy: a segment index of a long
-    recording is one value per sample), the samples marked missing as ``missing`` (-1: no segment)."""
-    v = var[:]
+    recording is one value per sample), the samples marked missing as ``missing`` (-1: no segment). ``index``: the
+    part to read (default: all)."""
+    v = var[index]
     return np.ma.filled(v, missing) if np.ma.is_masked(v) else np.asarray(np.ma.getdata(v))
 
 

@@ -418,8 +418,8 @@ class _OnChunkError(Exception):
     """An exception of a validation's ``on_chunk``, carried out of the checks that name a failure the file's."""
 
 
-#: the temperature samples :func:`validate` reads at a time
-TEMPERATURE_SLICE = 1_000_000
+#: the samples of a per-sample variable (segment index, temperature) :func:`validate` reads at a time
+PER_SAMPLE_SLICE = 1_000_000
 
 
 def _validate_body(path, h: Header, on_chunk=None) -> None:
@@ -430,9 +430,10 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
             si = var["segment_index"]
             if si.dimensions != ("time",):
                 raise RecordingError(path, "segment_index", f"dimensions {si.dimensions}, expected ('time',)")
-            vals = index_values(si)
-            if vals.size and (vals.max() >= nseg or vals.min() < -1):
-                raise RecordingError(path, "segment_index", f"values must lie in -1..{nseg - 1}")
+            for i0 in range(0, si.shape[0], PER_SAMPLE_SLICE):   # one value per sample: in slices
+                vals = index_values(si, slice(i0, i0 + PER_SAMPLE_SLICE))
+                if vals.size and (vals.max() >= nseg or vals.min() < -1):
+                    raise RecordingError(path, "segment_index", f"values must lie in -1..{nseg - 1}")
         if "segment" in nc.dimensions:
             for name in ("segment_kind",):
                 if name not in var:
@@ -452,8 +453,8 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
         if "temperature" in var:
             tv = var["temperature"]
             if tv.ndim == 1:   # one value per sample: read in slices, memory flat however long the record
-                for i0 in range(0, tv.shape[0], TEMPERATURE_SLICE):
-                    _check_finite(path, "temperature", float_values(tv, slice(i0, i0 + TEMPERATURE_SLICE)), i0)
+                for i0 in range(0, tv.shape[0], PER_SAMPLE_SLICE):
+                    _check_finite(path, "temperature", float_values(tv, slice(i0, i0 + PER_SAMPLE_SLICE)), i0)
             else:
                 _check_finite(path, "temperature", float_values(tv))
     with netCDF4.Dataset(path, "r") as nc:
