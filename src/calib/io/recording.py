@@ -423,8 +423,9 @@ PER_SAMPLE_SLICE = 1_000_000
 
 
 def _validate_body(path, h: Header, on_chunk=None) -> None:
-    with netCDF4.Dataset(path, "r") as nc:   # the few whole variables, read as xarray decodes them
+    with netCDF4.Dataset(path, "r") as nc:   # the segment table and temperature, decoded as xarray decodes them
         var = nc.variables
+        fills = {v: fill_values(var[v]) for v in ("accel", "gyro")}
         nseg = len(nc.dimensions["segment"]) if "segment" in nc.dimensions else 0
         if "segment_index" in var:
             si = var["segment_index"]
@@ -457,8 +458,6 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
                     _check_finite(path, "temperature", float_values(tv, slice(i0, i0 + PER_SAMPLE_SLICE)), i0)
             else:
                 _check_finite(path, "temperature", float_values(tv))
-    with netCDF4.Dataset(path, "r") as nc:
-        fills = {v: fill_values(nc.variables[v]) for v in ("accel", "gyro")}
     for start, acc, gyr in iter_raw_chunks(path, h):
         _check_finite(path, "accel", acc, start)
         _check_finite(path, "gyro", gyr, start)
