@@ -650,6 +650,33 @@ def test_navigate_reads_the_recording_s_header_once_beside_its_check(tmp_path, c
     assert len(reads) == 2, len(reads)
 
 
+def test_navigate_reads_the_calibration_file_once(tmp_path, capsys, monkeypatch):
+    """`calib navigate --calibration FILE` opens the calibration once: its kind check, the early units check and the
+    navigation share that read (three opens before). Counted on xarray's opening of that file."""
+    import xarray as xr
+
+    from calib.core import helper
+    from calib.core.triad import liu2021_model
+
+    rec = tmp_path / "static.nc"
+    simulator.simulate_static_session({"mode": "counts", "duration_h": 0.002, "site": SITE}, 3, rec)
+    cal = tmp_path / "cal.nc"
+    xr.Dataset({s: (("parameter",), liu2021_model(s).to_vector()) for s in ("accel", "gyro")}).to_netcdf(cal)
+    monkeypatch.setenv(helper.ENV, "off")
+    opens, open_dataset = [], xr.open_dataset
+
+    def counted(path, *a, **k):
+        if Path(path) == cal:
+            opens.append(1)
+        return open_dataset(path, *a, **k)
+
+    monkeypatch.setattr(xr, "open_dataset", counted)
+    code, err = run(capsys, "navigate", rec, "--calibration", cal, "--out", tmp_path / "out.nc",
+                    "--output-interval", "1")
+    assert code == 0 and (tmp_path / "out.nc").exists(), err
+    assert len(opens) == 1, len(opens)
+
+
 def test_no_recorded_attitude_is_refused_with_the_command_s_option(tmp_path, capsys, static_rates):
     acc, gyr = static_rates
     code, err = run(capsys, "navigate", physical(tmp_path, "r.nc", acc, gyr), "--out", tmp_path / "nav.nc")

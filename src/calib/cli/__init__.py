@@ -266,14 +266,11 @@ def cmd_navigate(a):
     # comes before anything the navigation raised (an early refusal below comes first: the check is then dropped)
     with recording.reuse_validation(), helper.running() as h:
         job = _start_input_check(h, a.recording, a.force, "recording") if h is not None else None
-        from calib.signal import plausibility
         from calib.studies import navigation as navigation_study
 
-        if a.calibration:
-            plausibility.check_calibration_file(a.calibration)
-        # what needs no sample first: a wrong pairing of units and calibration is named at once, not after the check
-        # of every sample of a long recording (4-5 s for 240 h at 100 Hz)
-        header = navigation_study.check_navigation_inputs(a.recording, a.calibration)
+        # what needs no sample first: a calibration file of the wrong kind, a wrong pairing of units and calibration
+        # are named at once, not after the check of every sample of a long recording (4-5 s for 240 h at 100 Hz)
+        inputs = navigation_study.check_navigation_inputs(a.recording, a.calibration)
         nav = {"nav_rate_hz": a.nav_rate, "output_interval_s": a.output_interval}
         if job is None:
             _recording(a.recording, a.force)
@@ -285,7 +282,7 @@ def cmd_navigate(a):
 
         try:
             navigation_study.navigate_file(a.recording, a.calibration, a.out, nav, init="align" if a.align else "attrs",
-                                           inputs_checked=checked, header=header)
+                                           inputs_checked=checked, inputs=inputs)
         except Exception:
             checked()   # the input's refusal names the cause of whatever the navigation raised
             raise

@@ -105,31 +105,33 @@ def _fig10(path, res):
 
 
 def load_calibration(nc_path):
-    """TriadCalibration from a ``default_calibration.nc`` of the calibrate stage (body frame, counts)."""
-    with xr.open_dataset(nc_path, engine="netcdf4") as d:
-        return navigation.TriadCalibration(TriadModel.from_vector(d["accel"].values, "g", "count s-1"),
-                                           TriadModel.from_vector(d["gyro"].values, "deg h-1", "count s-1"))
+    """TriadCalibration from a ``default_calibration.nc`` of the calibrate stage (body frame, counts); any other file
+    is refused (:func:`calib.signal.plausibility.check_calibration_file`, whose read gives the vectors)."""
+    vecs = plausibility.check_calibration_file(nc_path)
+    return navigation.TriadCalibration(TriadModel.from_vector(vecs["accel"], "g", "count s-1"),
+                                       TriadModel.from_vector(vecs["gyro"], "deg h-1", "count s-1"))
 
 
 def check_navigation_inputs(recording_path, calibration_nc):
-    """What can be refused before a sample is read: the recording's units against the calibration given (raw counts
-    need one, physical units take none; :func:`calib.nav.navigation.check_units`). ``calib navigate`` asks this
-    first: a wrong pairing is named at once, not after the full check of a long recording's samples. Returns the
-    recording's header (for :func:`navigate_file`)."""
+    """What can be refused before a sample is read: the calibration file's kind, and the recording's units against
+    the calibration given (raw counts need one, physical units take none; :func:`calib.nav.navigation.check_units`).
+    ``calib navigate`` asks this first: a wrong pairing is named at once, not after the full check of a long
+    recording's samples. Returns ``(header, calibration or None)``, for :func:`navigate_file` (``inputs=``)."""
+    cal = load_calibration(calibration_nc) if calibration_nc else None
     h = read_header(recording_path)
-    navigation.check_units(h, load_calibration(calibration_nc) if calibration_nc else None)
-    return h
+    navigation.check_units(h, cal)
+    return h, cal
 
 
 def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print,
-                  inputs_checked=None, header=None):
+                  inputs_checked=None, inputs=None):
     """Navigate one recording (streamed, progress in the log) and write the labelled error dataset.
     ``inputs_checked()``: called once the navigation is done, before its result is judged or written (``calib
     navigate`` checks every sample of the recording beside the navigation and collects that check there: a refusal
-    of it raises and nothing is written). ``header``: the recording's header when the caller has read it."""
+    of it raises and nothing is written). ``inputs``: :func:`check_navigation_inputs` of these two files when the
+    caller has it (the header and the calibration are then not read again)."""
 
-    cal = load_calibration(calibration_nc) if calibration_nc else None
-    h = header or read_header(recording_path)
+    h, cal = inputs if inputs is not None else check_navigation_inputs(recording_path, calibration_nc)
     bar = Progress(h.n_samples, f"navigating {Path(recording_path).name}")
     ds = navigation.navigate_recording(recording_path, calibration=cal, init=init, nav_rate_hz=nav["nav_rate_hz"],
                                        output_interval_s=nav["output_interval_s"], progress=lambda d, n: bar(d),
