@@ -49,6 +49,9 @@ def test_jobs_values_prints_exceptions_and_parallel_calls(capsys):
         assert h.run("os:getpid") == h.pid != os.getpid()
         pids = h.result(h.submit([("os:getpid", ()), ("os:getpid", ())]))
         assert pids[0] == h.pid and pids[1] not in (h.pid, os.getpid())   # the second call in a grandchild
+        with pytest.raises(helper.HelperError, match="os:_exit: the drawing process ended without answering"):
+            h.result(h.submit([("os:getpid", ()), ("os:_exit", (3,))]))   # a grandchild that dies: its call fails
+        assert h.run("os:getpid") == h.pid   # the helper serves on
         assert h.run("builtins:print", "a line the job printed") is None
         assert capsys.readouterr().out == "a line the job printed\n"   # printed where the command waits for it
         with pytest.raises(json.JSONDecodeError) as ei:

@@ -296,18 +296,19 @@ def _serve(req_r, rep_w, mask):
         os._exit(code)
 
 
-def _start_beside(calls, jid, beside):
-    """Fork the process of a job run beside the helper: it runs ``calls`` (:func:`_run_calls`) and writes its
-    reply frame to a pipe of its own, which the helper forwards."""
+def _fork_answering(produce, also_close=()):
+    """Fork a process that writes one frame -- the value of ``produce()`` -- to a pipe of its own and exits; returns
+    (the pipe's read end, its pid), collected by :func:`_answer_of`. It closes the helper's request and reply pipes
+    (and ``also_close``): only the helper writes to the command."""
     r, w = _pipe()
     pid = os.fork()
     if pid == 0:
         code = 0
         try:
-            for fd in [r, *_SERVING, *beside]:
+            for fd in [r, *_SERVING, *also_close]:
                 os.close(fd)
             _SERVING[:] = []
-            _write_all(w, _frame((jid, _run_calls(calls))))
+            _write_all(w, _frame(produce()))
         except BaseException:  # noqa: BLE001 - the helper sees the pipe close
             code = 1
         finally:
@@ -316,14 +317,27 @@ def _start_beside(calls, jid, beside):
     return r, pid
 
 
+def _answer_of(r, pid):
+    """(the frame a process of :func:`_fork_answering` wrote, as bytes -- None when it ended without one --, its
+    wait status); the pipe closed, the process reaped."""
+    head = _read_exact(r, _HEADER.size)
+    body = None if head is None else _read_exact(r, _HEADER.unpack(head)[0])
+    os.close(r)
+    _, status = os.waitpid(pid, 0)
+    return (None if body is None else head + body), status
+
+
+def _start_beside(calls, jid, beside):
+    """The process of a job run beside the helper (:func:`_fork_answering`): its reply frame, which the helper
+    forwards (:func:`_reply_of`)."""
+    return _fork_answering(lambda: (jid, _run_calls(calls)), also_close=beside)
+
+
 def _reply_of(fd, pid, jid, ncalls) -> bytes:
     """The reply frame a job run beside wrote (forwarded as it is), or one naming how its process ended."""
-    head = _read_exact(fd, _HEADER.size)
-    body = None if head is None else _read_exact(fd, _HEADER.unpack(head)[0])
-    os.close(fd)
-    _, status = os.waitpid(pid, 0)
-    if body is not None:
-        return head + body
+    frame, status = _answer_of(fd, pid)
+    if frame is not None:
+        return frame
     lost = (False, (None, "HelperError", f"the process of job {jid} ended without answering ({_describe(status)})",
                     ""), "")
     return _frame((jid, [lost] * ncalls))
@@ -331,31 +345,13 @@ def _reply_of(fd, pid, jid, ncalls) -> bytes:
 
 def _run_calls(calls):
     """Run the calls, all but the first in forked grandchildren at the same time; outcomes in call order."""
-    kids = []
-    for target, args in calls[1:]:
-        r, w = os.pipe()
-        pid = os.fork()
-        if pid == 0:
-            code = 0
-            try:
-                for fd in [r] + _SERVING:
-                    os.close(fd)
-                _write_all(w, _frame(_call(target, args)))
-            except BaseException:  # noqa: BLE001 - the helper sees the pipe close
-                code = 1
-            finally:
-                os._exit(code)
-        os.close(w)
-        kids.append((pid, r))
+    kids = [_fork_answering(lambda target=target, args=args: _call(target, args)) for target, args in calls[1:]]
     out = [_call(*calls[0])] if calls else []
-    for (target, _), (pid, r) in zip(calls[1:], kids):
-        got = _recv(r)
-        os.close(r)
-        _, status = os.waitpid(pid, 0)
-        if got is None:
-            got = (False, (None, "HelperError", f"{target}: the drawing process ended without answering "
-                                                f"({_describe(status)})", ""), "")
-        out.append(got)
+    for (target, _), (r, pid) in zip(calls[1:], kids):
+        frame, status = _answer_of(r, pid)
+        out.append(pickle.loads(frame[_HEADER.size:]) if frame is not None else
+                   (False, (None, "HelperError", f"{target}: the drawing process ended without answering "
+                                                 f"({_describe(status)})", ""), ""))
     return out
 
 
