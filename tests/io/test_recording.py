@@ -388,3 +388,122 @@ def test_the_check_of_a_recording_imports_neither_xarray_nor_pandas(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+def _same_as_load(path):
+    """load_arrays(path) against load(path): names, sizes, global and variable attributes, dimensions, and values
+    with their dtype (NaN where load has NaN)."""
+    arr, ds = recording.load_arrays(path), recording.load(path)
+    assert isinstance(arr, recording.RecordingArrays)
+    assert sorted(arr.variables) == sorted(ds.variables)
+    assert arr.sizes == dict(ds.sizes) and sorted(arr.coords) == sorted(ds.coords)
+    assert arr.attrs.keys() == ds.attrs.keys()
+    for k, v in ds.attrs.items():
+        np.testing.assert_array_equal(arr.attrs[k], v)
+    for name in ds.variables:
+        got, want = arr[name], ds[name]
+        assert got.dims == want.dims and got.attrs.keys() == want.attrs.keys(), name
+        for k, v in want.attrs.items():
+            np.testing.assert_array_equal(got.attrs[k], v, err_msg=f"{name}: {k}")
+        assert got.values.dtype == want.values.dtype, (name, got.values.dtype, want.values.dtype)
+        np.testing.assert_array_equal(got.values, want.values, err_msg=name)
+    return arr
+
+
+def test_load_arrays_reads_what_load_reads(tmp_path):
+    """calib diagnose reads its recording with netCDF4 alone (recording.load_arrays: no xarray, no pandas in its
+    process). Every variable, attribute and dimension as xarray's load gives them: a session with a segment table
+    (integer counts, strings, float temperature), extra variables with _FillValue / missing_value samples (NaN; an
+    integer one becomes float64 as in xarray), a valid_range that netCDF4 alone would mask and xarray keeps, and a
+    long file without a time variable (time from t0_s and sample_rate_hz)."""
+    import netCDF4
+
+    path = recording.write(good_dataset(4), tmp_path / "ok.nc")
+    with netCDF4.Dataset(path, "a") as nc:
+        f = nc.createVariable("extra_float", "f4", ("segment",), fill_value=np.float32(-1.0))
+        f.set_auto_maskandscale(False)
+        f[:] = np.array([-1.0, 2.5], np.float32)
+        i = nc.createVariable("extra_int", "i4", ("segment",), fill_value=np.int32(-9))
+        i.setncattr("missing_value", np.int32(-8))
+        i.set_auto_maskandscale(False)
+        i[:] = np.array([-8, 3], np.int32)
+        r = nc.createVariable("extra_range", "f8", ("segment",))
+        r.setncattr("valid_range", np.array([0.0, 1.0]))
+        r.set_auto_maskandscale(False)
+        r[:] = np.array([0.5, 7.0])
+    with pytest.warns(xr.SerializationWarning, match="multiple fill values"):
+        arr = _same_as_load(path)
+    assert np.isnan(arr["extra_float"].values[0]) and arr["extra_int"].values.dtype == np.float64
+    assert arr["extra_range"].values.tolist() == [0.5, 7.0]
+    assert arr.attrs["_path"] == str(path) and arr["gyro"].attrs["units"] == "count"
+
+    rng = np.random.default_rng(5)
+    long_path = tmp_path / "long.nc"
+    with recording.LongRecordingWriter(long_path, 500, 200.0, latitude_deg=45.0, accel_units="m s-1",
+                                       gyro_units="rad", dtype="f4", t0_s=3.0, temperature=True) as w:
+        w.append(rng.normal(0, 0.05, (500, 3)) + [0, 0, 0.049], rng.normal(0, 1e-5, (500, 3)),
+                 np.full(500, 21.5))
+    arr = _same_as_load(long_path)
+    assert "time" in arr.coords
+    np.testing.assert_allclose(arr["time"].values, 3.0 + np.arange(500) / 200.0)
+    assert arr["accel"].values.dtype == np.float32
+
+
+def test_load_arrays_leaves_what_needs_more_decoding_to_xarray(tmp_path):
+    """A packed variable (scale_factor: the float type of its values follows xarray's rules) or a duration in
+    'seconds' (xarray makes time deltas of it) is read by xarray's load: the same values either way."""
+    import netCDF4
+
+    for k, (attr, value) in enumerate((("scale_factor", 0.5), ("units", "seconds"))):
+        path = recording.write(good_dataset(6), tmp_path / f"needs_{k}.nc")
+        with netCDF4.Dataset(path, "a") as nc:
+            v = nc.createVariable("extra", "i2", ("segment",))
+            v.setncattr(attr, value)
+            v[:] = np.array([1, 2], np.int16)
+        got, want = recording.load_arrays(path), recording.load(path)
+        assert isinstance(got, xr.Dataset)
+        xr.testing.assert_identical(got, want)
+
+
+def test_calib_diagnose_imports_neither_xarray_nor_pandas(tmp_path):
+    """calib diagnose of a recording with a segment table, with a noise record, runs without xarray and pandas in
+    any of its processes (the command, its helper and the figures' processes: their import is 0.3 s of a 2 s cold
+    command). Run as the command runs, in a fresh interpreter; fails if any module on its path imports them."""
+    import subprocess
+    import sys
+
+    from calib.sim import simulator
+
+    rec = simulator.simulate_calibration_session({"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0,
+                                                  "revolutions": 1}, 8, tmp_path / "s.nc")
+    nr = tmp_path / "nr.nc"
+    simulator.simulate_static_session({"mode": "counts", "duration_h": 0.2, "sample_rate_hz": 100.0,
+                                       "site": {"latitude_deg": 30.58, "height_m": 0.0},
+                                       "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}},
+                                      3, nr, tmp_path / "nr.truth.json")
+    log = tmp_path / "modules.txt"
+    code = ("import os, sys\n"
+            "_exit = os._exit\n"
+            "def spy(code):\n"
+            f"    open({str(log)!r}, 'a').write(' '.join(m for m in ('xarray', 'pandas') if m in sys.modules) + '|')\n"
+            "    _exit(code)\n"
+            "os._exit = spy\n"
+            "import calib.figures.diagnosis as f\n"
+            "for name in ('warm_up', 'render'):\n"
+            "    def wrapped(*a, _f=getattr(f, name), **k):\n"
+            "        try:\n"
+            "            return _f(*a, **k)\n"
+            "        finally:\n"
+            f"            open({str(log)!r}, 'a').write(' '.join(m for m in ('xarray', 'pandas') if m in sys.modules) + '|')\n"
+            "    setattr(f, name, wrapped)\n"
+            "from calib import cli\n"
+            f"sys.argv = ['calib', 'diagnose', {str(rec)!r}, '--noise-record', {str(nr)!r}, '--out', "
+            f"{str(tmp_path / 'out')!r}]\n"
+            "cli.run()\n")
+    env = {**os.environ, "CALIB_SERVER": "off"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert out.returncode in (0, 1, 3), out.stderr
+    assert (tmp_path / "out" / "report.json").exists() and (tmp_path / "out" / "allan_deviation.png").exists()
+    seen = log.read_text().split("|")[:-1]
+    assert len(seen) >= 3, seen   # the helper's warm-up, at least one figure, the command's exit
+    assert seen == [""] * len(seen), seen

@@ -330,9 +330,6 @@ def _diagnose(a, h=None):
     from calib.diagnosis.problem import settings_of
     from calib.io.atomic import output_set
 
-    if not warm:   # the dataset library of the loading (0.3 s; the checks need none): imported while they run
-        import xarray  # noqa: F401
-
     if settings:   # names, types and ranges, refused naming the file and the setting
         settings_of(settings, file=a.settings)
 

@@ -482,7 +482,7 @@ def record_noise_models(path) -> dict:
     p = Path(path)
     key = (str(p.resolve()), p.stat().st_mtime_ns)
     if key not in _RECORD_MODELS:
-        ds = recording.load(p)
+        ds = recording.load_arrays(p)   # numpy arrays: no xarray in calib diagnose's process
         models = {}
         for s in SENSORS:
             la = noisecov.long_record_allan(ds, s)

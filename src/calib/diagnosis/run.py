@@ -112,12 +112,18 @@ def diagnose_recording(path, out_dir, settings=None, intervals=None, intervals_s
     return (rep, prob) if return_problem else rep
 
 
-def load_for_diagnosis(path, settings=None, intervals=None, intervals_source: str = ""):
+def load_for_diagnosis(path, settings=None, intervals=None, intervals_source: str = "", *, dataset: bool = False):
     """The recording at ``path`` as the diagnosis works on it: ``(dataset, None)`` with a segment table (the file's,
-    the static ``intervals`` given, or static detection), or ``(None, inconclusive report)`` naming why not."""
+    the static ``intervals`` given, or static detection), or ``(None, inconclusive report)`` naming why not.
+
+    The recording comes as :func:`calib.io.recording.load_arrays` reads it (numpy arrays: all the diagnosis reads,
+    without importing xarray), or with ``dataset=True`` -- and whenever a segment table has to be added -- as an
+    ``xarray.Dataset`` (:func:`calib.io.recording.load`; e.g. to make new recordings from it)."""
     st = settings_of(settings)
     try:
-        ds = recording.load(path)
+        ds = recording.load(path) if dataset else recording.load_arrays(path)
+        if "segment_index" not in ds and isinstance(ds, recording.RecordingArrays):   # a table is added to a dataset
+            ds = recording.load(path)
     except (RecordingError, OSError, ValueError) as exc:
         return None, inconclusive_report(path, st, f"cannot read the recording: {exc}",
                                          "give a valid calib-recording-1 file")

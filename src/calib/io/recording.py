@@ -561,6 +561,116 @@ def load(path, validate_all: bool = True) -> xr.Dataset:
     return ds
 
 
+#: variable attributes xarray's default decoding consumes (they are not in its ``attrs``)
+_DECODED_ATTRS = ("_FillValue", "missing_value", "scale_factor", "add_offset", "_Unsigned", "_Encoding",
+                  "coordinates")
+
+
+@dataclass(frozen=True)
+class ArrayVariable:
+    """One variable of a :class:`RecordingArrays`: its values (numpy, decoded as xarray decodes them), attributes
+    and dimension names -- what the diagnosis reads of an ``xarray.DataArray``."""
+    values: np.ndarray
+    attrs: dict
+    dims: tuple
+
+
+class RecordingArrays:
+    """A recording read whole into numpy arrays with netCDF4, offering the part of ``xarray.Dataset`` that the
+    diagnosis reads: ``attrs``, ``sizes``, ``coords`` (names), ``name in rec``, ``rec[name].values / .attrs /
+    .dims``. ``calib diagnose`` reads its file this way: its process then never imports xarray and pandas (0.3 s
+    of its 2 s). Made by :func:`load_arrays` only; anything else of a dataset (selection, copies, writing) needs
+    :func:`load`."""
+
+    def __init__(self, attrs: dict, variables: dict, sizes: dict):
+        self.attrs = attrs
+        self._variables = variables
+        self.sizes = sizes
+        # xarray's index coordinates: a variable named after its only dimension
+        self.coords = tuple(k for k, v in variables.items() if v.dims == (k,))
+
+    def __contains__(self, name) -> bool:
+        return name in self._variables
+
+    def __getitem__(self, name) -> ArrayVariable:
+        return self._variables[name]
+
+    @property
+    def variables(self):
+        return self._variables.keys()
+
+
+def _needs_xarray_decoding(var) -> bool:
+    """A variable whose default xarray decoding is more than masking: packed (its float type follows xarray's
+    rules), unsigned-flagged, a time in 'units since epoch' or a duration in 'seconds' (decoded to dates and time
+    deltas), or characters without an ``_Encoding`` (joined into byte strings)."""
+    names = var.ncattrs()
+    units = var.getncattr("units") if "units" in names else ""
+    return (any(a in names for a in ("scale_factor", "add_offset", "_Unsigned"))
+            or (isinstance(units, str) and (" since " in units or units in _TIMEDELTA_UNITS))
+            or (np.dtype(var.dtype).kind == "S" and "_Encoding" not in names))
+
+
+#: the unit names xarray decodes a variable's values from into time deltas
+_TIMEDELTA_UNITS = ("days", "hours", "minutes", "seconds", "milliseconds", "microseconds", "nanoseconds")
+
+
+def _decoded(var) -> np.ndarray:
+    """The values xarray's default decoding gives a variable that needs no more than masking: the values equal to
+    its ``_FillValue`` or ``missing_value`` attributes as NaN (an integer variable with such an attribute as
+    float64, which the diagnosis converts to anyway); no other value masked (netCDF4's own masking also hides the
+    library's default fill and values outside ``valid_range``, which xarray keeps)."""
+    if var.dtype == str or var.dtype.kind in "SU" or "_Encoding" in var.ncattrs():
+        strings = string_values(var)
+        return np.asarray(strings) if strings else np.asarray(strings, dtype=str)
+    var.set_auto_maskandscale(False)
+    raw = np.asarray(var[...])
+    fills = [v for name in ("_FillValue", "missing_value") if name in var.ncattrs()
+             for v in np.atleast_1d(var.getncattr(name)).tolist()]
+    if not fills:
+        return raw
+    out = raw.astype(np.float64) if raw.dtype.kind in "iu" else raw
+    for fv in fills:
+        if isinstance(fv, float) and math.isnan(fv):
+            continue
+        out = np.where(raw == fv, np.nan, out) if (raw == fv).any() else out
+    return out
+
+
+def load_arrays(path, validate_all: bool = True):
+    """The recording at ``path`` as :func:`load` gives it, read into a :class:`RecordingArrays` with netCDF4 (no
+    xarray, no pandas): the same values (tests/io/test_recording.py compares every variable with :func:`load`'s),
+    attributes (units in calib's spelling, ``_path``) and time coordinate (computed from ``t0_s`` and
+    ``sample_rate_hz`` when the file has none). A file with a variable that needs more of xarray's decoding
+    (packed, unsigned-flagged, dates) is read by :func:`load` instead (an ``xarray.Dataset``, same interface)."""
+    path = Path(path)
+    h = validate(path) if validate_all else read_header(path)
+    nc = _open(path)
+    try:
+        if any(_needs_xarray_decoding(v) for v in nc.variables.values()):
+            nc.close()
+            return load(path, validate_all=False)
+        attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
+        sizes = {k: len(d) for k, d in nc.dimensions.items()}
+        variables = {}
+        for name, var in nc.variables.items():
+            va = {k: var.getncattr(k) for k in var.ncattrs() if k not in _DECODED_ATTRS}
+            if "units" in va:
+                va["units"] = internal_units(va["units"])
+            variables[name] = ArrayVariable(_decoded(var), va, tuple(var.dimensions))
+    except RecordingError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+        raise _unreadable(path, exc) from exc
+    finally:
+        if nc.isopen():
+            nc.close()
+    if "time" not in variables:
+        variables["time"] = ArrayVariable(h.t0_s + np.arange(h.n_samples) / h.sample_rate_hz, {}, ("time",))
+    attrs["_path"] = str(path)
+    return RecordingArrays(attrs, variables, sizes)
+
+
 def to_si(values, units: str, kind: str, dt: float, sensor: str):
     """Physical-unit samples to SI increments (m/s or rad) per sample for navigation.
 

@@ -584,7 +584,7 @@ def limits_into_report(path, out_dir, report: dict, settings=None, reps: int = 2
     atomically). A recording the diagnosis refused gets no limits; the report says why."""
     from calib.diagnosis import load_for_diagnosis, report_markdown
 
-    ds, refusal = load_for_diagnosis(path, settings, intervals, intervals_source)
+    ds, refusal = load_for_diagnosis(path, settings, intervals, intervals_source, dataset=True)
     if refusal is not None:
         report = {**report, "detection_limits": {"rows": [], "why": refusal.get("verdict_reason")}}
     else:
