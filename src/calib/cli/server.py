@@ -2,7 +2,7 @@
 warm.
 
 A cold ``calib diagnose FILE`` spends about half its wall time before it reads a byte of FILE: importing numpy,
-scipy, xarray and numba (~1.2 s), initialising numba and loading its cached kernels (~0.4 s), and, in its helper,
+scipy and numba (~0.9 s), initialising numba and loading its cached kernels (~0.3 s), and, in its helper,
 importing matplotlib and loading fonts (~0.8 s). None of that depends on the file. After a cold run the command
 starts a server in the background (one per user and *key*, below) that does all of it once and then waits on a
 UNIX socket; the next ``calib diagnose`` connects, hands over its arguments, working directory, environment, umask,
