@@ -413,9 +413,9 @@ def _same_as_load(path):
 def test_load_arrays_reads_what_load_reads(tmp_path):
     """calib diagnose reads its recording with netCDF4 alone (recording.load_arrays: no xarray, no pandas in its
     process). Every variable, attribute and dimension as xarray's load gives them: a session with a segment table
-    (integer counts, strings, float temperature), extra variables with _FillValue / missing_value samples (NaN; an
-    integer one becomes float64 as in xarray), a valid_range that netCDF4 alone would mask and xarray keeps, and a
-    long file without a time variable (time from t0_s and sample_rate_hz)."""
+    (integer counts, strings, float temperature), extra variables with _FillValue / missing_value samples (NaN;
+    integers become float32 or float64 as in xarray), a valid_range that netCDF4 alone would mask and xarray keeps,
+    and a long file without a time variable (time from t0_s and sample_rate_hz)."""
     import netCDF4
 
     path = recording.write(good_dataset(4), tmp_path / "ok.nc")
@@ -427,6 +427,8 @@ def test_load_arrays_reads_what_load_reads(tmp_path):
         i.setncattr("missing_value", np.int32(-8))
         i.set_auto_maskandscale(False)
         i[:] = np.array([-8, 3], np.int32)
+        i2 = nc.createVariable("extra_short", "i2", ("segment",), fill_value=np.int16(-7))
+        i2[:] = np.ma.masked_array([4, 0], mask=[0, 1])
         r = nc.createVariable("extra_range", "f8", ("segment",))
         r.setncattr("valid_range", np.array([0.0, 1.0]))
         r.set_auto_maskandscale(False)
@@ -434,6 +436,7 @@ def test_load_arrays_reads_what_load_reads(tmp_path):
     with pytest.warns(xr.SerializationWarning, match="multiple fill values"):
         arr = _same_as_load(path)
     assert np.isnan(arr["extra_float"].values[0]) and arr["extra_int"].values.dtype == np.float64
+    assert arr["extra_short"].values.dtype == np.float32 and np.isnan(arr["extra_short"].values[1])
     assert arr["extra_range"].values.tolist() == [0.5, 7.0]
     assert arr.attrs["_path"] == str(path) and arr["gyro"].attrs["units"] == "count"
 

@@ -617,8 +617,8 @@ _TIMEDELTA_UNITS = ("days", "hours", "minutes", "seconds", "milliseconds", "micr
 
 def _decoded(var) -> np.ndarray:
     """The values xarray's default decoding gives a variable that needs no more than masking: the values equal to
-    its ``_FillValue`` or ``missing_value`` attributes as NaN (an integer variable with such an attribute as
-    float64, which the diagnosis converts to anyway); no other value masked (netCDF4's own masking also hides the
+    its ``_FillValue`` or ``missing_value`` attributes as NaN (an integer variable with such an attribute as float,
+    of xarray's width); no other value masked (netCDF4's own masking also hides the
     library's default fill and values outside ``valid_range``, which xarray keeps)."""
     if var.dtype == str or var.dtype.kind in "SU" or "_Encoding" in var.ncattrs():
         strings = string_values(var)
@@ -629,11 +629,14 @@ def _decoded(var) -> np.ndarray:
              for v in np.atleast_1d(var.getncattr(name)).tolist()]
     if not fills:
         return raw
-    out = raw.astype(np.float64) if raw.dtype.kind in "iu" else raw
+    # xarray's promotion of an integer type with a fill value: float32 for 8 and 16 bits, float64 above
+    out = raw.astype(np.float32 if raw.dtype.itemsize <= 2 else np.float64) if raw.dtype.kind in "iu" else raw
     for fv in fills:
         if isinstance(fv, float) and math.isnan(fv):
             continue
-        out = np.where(raw == fv, np.nan, out) if (raw == fv).any() else out
+        missing = raw == fv
+        if missing.any():
+            out = np.where(missing, np.nan, out)
     return out
 
 
