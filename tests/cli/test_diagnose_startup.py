@@ -93,3 +93,24 @@ def test_each_input_is_read_once_with_the_same_report(tmp_path, capsys, monkeypa
     assert (tmp_path / "once" / "report.json").read_bytes() == (tmp_path / "every" / "report.json").read_bytes()
     assert (tmp_path / "once" / "report.md").read_bytes() == (tmp_path / "every" / "report.md").read_bytes()
     capsys.readouterr()
+
+
+def test_a_recording_without_segment_table_is_checked_once(tmp_path, monkeypatch):
+    """The diagnosis reads a recording as numpy arrays (recording.load_arrays), and one without a segment table again
+    as a dataset for the static detection: its samples are checked by the first read only (outside the command's
+    reuse_validation block too, as in the workflow's rules), and the detection gives it a table."""
+    import xarray as xr
+
+    from calib.diagnosis import load_for_diagnosis
+
+    rec = simulator.simulate_calibration_session(SHORT_SESSION, 9, tmp_path / "with_table.nc")
+    with xr.open_dataset(rec, engine="netcdf4") as ds:
+        bare = ds.load().drop_vars([v for v in ds.variables if "segment" in ds[v].dims
+                                    or v in ("segment_index", "table_angle")])
+    path = recording.write(bare, tmp_path / "bare.nc")
+    checked = []
+    body = recording._validate_body
+    monkeypatch.setattr(recording, "_validate_body", lambda p, h, *rest: (checked.append(p), body(p, h, *rest))[1])
+    ds, refusal = load_for_diagnosis(path)
+    assert refusal is None and "segment_index" in ds and "static detection" in ds.attrs["segments_from"]
+    assert checked == [path]

@@ -123,7 +123,7 @@ def load_for_diagnosis(path, settings=None, intervals=None, intervals_source: st
     try:
         ds = recording.load(path) if dataset else recording.load_arrays(path)
         if "segment_index" not in ds and isinstance(ds, recording.RecordingArrays):   # a table is added to a dataset
-            ds = recording.load(path)
+            ds = recording.load(path, validate_all=False)   # (checked by load_arrays just now)
     except (RecordingError, OSError, ValueError) as exc:
         return None, inconclusive_report(path, st, f"cannot read the recording: {exc}",
                                          "give a valid calib-recording-1 file")
