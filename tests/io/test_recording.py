@@ -453,19 +453,32 @@ def test_load_arrays_reads_what_load_reads(tmp_path):
 
 
 def test_load_arrays_leaves_what_needs_more_decoding_to_xarray(tmp_path):
-    """A packed variable (scale_factor: the float type of its values follows xarray's rules) or a duration in
-    'seconds' (xarray makes time deltas of it) is read by xarray's load: the same values either way."""
+    """A packed variable (scale_factor: the float type of its values follows xarray's rules), a duration in
+    'seconds' (xarray makes time deltas of it) or a character array (xarray joins its last dimension into strings
+    and drops it) is read by xarray's load: the same values either way. A dimension no variable uses is not in the
+    sizes, as in xarray."""
     import netCDF4
 
-    for k, (attr, value) in enumerate((("scale_factor", 0.5), ("units", "seconds"))):
+    for k, (attr, value) in enumerate((("scale_factor", 0.5), ("units", "seconds"), ("_Encoding", "utf-8"))):
         path = recording.write(good_dataset(6), tmp_path / f"needs_{k}.nc")
         with netCDF4.Dataset(path, "a") as nc:
-            v = nc.createVariable("extra", "i2", ("segment",))
-            v.setncattr(attr, value)
-            v[:] = np.array([1, 2], np.int16)
+            if attr == "_Encoding":
+                nc.createDimension("chars", 4)
+                v = nc.createVariable("extra", "S1", ("segment", "chars"))
+                v.setncattr(attr, value)
+                v[:] = netCDF4.stringtochar(np.array(["ab", "cdef"], dtype="S4"))
+            else:
+                v = nc.createVariable("extra", "i2", ("segment",))
+                v.setncattr(attr, value)
+                v[:] = np.array([1, 2], np.int16)
         got, want = recording.load_arrays(path), recording.load(path)
         assert isinstance(got, xr.Dataset)
         xr.testing.assert_identical(got, want)
+    path = recording.write(good_dataset(6), tmp_path / "unused_dimension.nc")
+    with netCDF4.Dataset(path, "a") as nc:
+        nc.createDimension("unused", 5)
+    arr = _same_as_load(path)
+    assert "unused" not in arr.sizes
 
 
 def test_calib_diagnose_imports_neither_xarray_nor_pandas(tmp_path):

@@ -603,12 +603,12 @@ class RecordingArrays:
 def _needs_xarray_decoding(var) -> bool:
     """A variable whose default xarray decoding is more than masking: packed (its float type follows xarray's
     rules), unsigned-flagged, a time in 'units since epoch' or a duration in 'seconds' (decoded to dates and time
-    deltas), or characters without an ``_Encoding`` (joined into byte strings)."""
+    deltas), or a character array (joined into strings along its last dimension, which xarray then drops)."""
     names = var.ncattrs()
     units = var.getncattr("units") if "units" in names else ""
     return (any(a in names for a in ("scale_factor", "add_offset", "_Unsigned"))
             or (isinstance(units, str) and (" since " in units or units in _TIMEDELTA_UNITS))
-            or (np.dtype(var.dtype).kind == "S" and "_Encoding" not in names))
+            or np.dtype(var.dtype).kind == "S")
 
 
 #: the unit names xarray decodes a variable's values from into time deltas
@@ -620,7 +620,7 @@ def _decoded(var) -> np.ndarray:
     its ``_FillValue`` or ``missing_value`` attributes as NaN (an integer variable with such an attribute as float,
     of xarray's width); no other value masked (netCDF4's own masking also hides the
     library's default fill and values outside ``valid_range``, which xarray keeps)."""
-    if var.dtype == str or var.dtype.kind in "SU" or "_Encoding" in var.ncattrs():
+    if var.dtype == str:   # variable-length strings
         strings = string_values(var)
         return np.asarray(strings) if strings else np.asarray(strings, dtype=str)
     var.set_auto_maskandscale(False)
@@ -645,7 +645,8 @@ def load_arrays(path, validate_all: bool = True):
     xarray, no pandas): the same values (tests/io/test_recording.py compares every variable with :func:`load`'s),
     attributes (units in calib's spelling, ``_path``) and time coordinate (computed from ``t0_s`` and
     ``sample_rate_hz`` when the file has none). A file with a variable that needs more of xarray's decoding
-    (packed, unsigned-flagged, dates) is read by :func:`load` instead (an ``xarray.Dataset``, same interface)."""
+    (:func:`_needs_xarray_decoding`: packed, unsigned-flagged, dates, character arrays) is read by :func:`load`
+    instead (an ``xarray.Dataset``, same interface)."""
     path = Path(path)
     h = validate(path) if validate_all else read_header(path)
     nc = _open(path)
@@ -654,7 +655,9 @@ def load_arrays(path, validate_all: bool = True):
             nc.close()
             return load(path, validate_all=False)
         attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
-        sizes = {k: len(d) for k, d in nc.dimensions.items()}
+        # xarray's sizes: the dimensions its variables use
+        sizes = {k: len(d) for k, d in nc.dimensions.items()
+                 if any(k in v.dimensions for v in nc.variables.values())}
         variables = {}
         for name, var in nc.variables.items():
             va = {k: var.getncattr(k) for k in var.ncattrs() if k not in _DECODED_ATTRS}
