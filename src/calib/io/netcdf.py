@@ -45,10 +45,12 @@ def conventions(attrs) -> str:
 
 
 def float_values(var, index=slice(None)) -> np.ndarray:
-    """A netCDF variable's values as float64 as xarray decodes them by default: ``scale_factor`` / ``add_offset``
-    applied and the samples marked missing (``_FillValue``, ``missing_value``) as NaN. For the checks that read a
-    few variables whole without xarray (:func:`calib.io.recording.validate`): a process that only checks a file
-    does not import xarray and pandas (0.3 s). ``index``: the part to read (default: all)."""
+    """A netCDF variable's values as float64, decoded by netCDF4: ``scale_factor`` / ``add_offset`` applied and the
+    samples marked missing (``_FillValue``, ``missing_value``) as NaN, as xarray decodes them -- and, unlike
+    xarray, also a sample equal to the library's default fill (no ``_FillValue`` attribute) or outside a
+    ``valid_range`` / ``valid_min`` / ``valid_max`` as NaN. For the checks that read a few variables without xarray
+    (:func:`calib.io.recording.validate`): a process that only checks a file does not import xarray and pandas
+    (0.3 s). ``index``: the part to read (default: all)."""
     return np.ma.filled(np.ma.asarray(var[index], dtype=np.float64), np.nan)
 
 

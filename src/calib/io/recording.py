@@ -325,14 +325,17 @@ def _check_finite(path, name, arr, offset=0):
                              "remove or interpolate the bad samples before import")
 
 
+def _attribute_fills(var) -> list:
+    """The values of a netCDF variable's ``_FillValue`` and ``missing_value`` attributes (those xarray masks)."""
+    return [v for name in ("_FillValue", "missing_value") if name in var.ncattrs()
+            for v in np.atleast_1d(var.getncattr(name)).tolist()]
+
+
 def fill_values(var) -> list:
     """The values that mark a missing sample of a netCDF variable: ``_FillValue`` and ``missing_value``, or
     (no ``_FillValue`` attribute) the library's default fill of a 32- or 64-bit type (that of an 8- or 16-bit
     type, e.g. -32767, is a reading a clipped sensor can give); NaN fills left out (NaN is refused as such)."""
-    out = []
-    for name in ("_FillValue", "missing_value"):
-        if name in var.ncattrs():
-            out.extend(np.atleast_1d(var.getncattr(name)).tolist())
+    out = _attribute_fills(var)
     if "_FillValue" not in var.ncattrs() and np.dtype(var.dtype).itemsize >= 4:
         fv = var.get_fill_value()
         if fv is not None:
@@ -625,16 +628,13 @@ def _decoded(var) -> np.ndarray:
         return np.asarray(strings) if strings else np.asarray(strings, dtype=str)
     var.set_auto_maskandscale(False)
     raw = np.asarray(var[...])
-    fills = [v for name in ("_FillValue", "missing_value") if name in var.ncattrs()
-             for v in np.atleast_1d(var.getncattr(name)).tolist()]
+    fills = _attribute_fills(var)
     if not fills:
         return raw
     # xarray's promotion of an integer type with a fill value: float32 for 8 and 16 bits, float64 above
     out = raw.astype(np.float32 if raw.dtype.itemsize <= 2 else np.float64) if raw.dtype.kind in "iu" else raw
     for fv in fills:
-        if isinstance(fv, float) and math.isnan(fv):
-            continue
-        missing = raw == fv
+        missing = raw == fv   # (a NaN fill marks nothing: NaN equals nothing, and is NaN already)
         if missing.any():
             out = np.where(missing, np.nan, out)
     return out
