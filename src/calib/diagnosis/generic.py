@@ -5,7 +5,7 @@ chi-square passes can still be wrong physics that happens to absorb the misfit. 
 
 1. **Open search** (:func:`open_search`). After the final model, the residuals are tested against generic bases
    that name no physics, per sensor and axis, each a family of per-sample terms ``d_i`` (input-referred, reduced
-   into observations exactly like the library's terms, :func:`calib.diagnosis.library._reduce_term`):
+   into observations exactly like the library's terms, :func:`calib.diagnosis.library.reduce_axis_terms`):
 
    * ``time``: Legendre polynomials of degree 1-3 of the session time and sinusoids of periods span/k,
      k = 1..6 -- a bias that moves in time (drift, oscillation, a step);
@@ -43,7 +43,7 @@ from calib.core.distributions import chi2_sf, f_sf
 from calib.diagnosis.adequacy import holm, measured_factors
 from calib.diagnosis.fitting import fit
 from calib.diagnosis.geometry import AXES, SENSORS, TO_MODEL
-from calib.diagnosis.library import _reduce_term, sample_context
+from calib.diagnosis.library import reduce_axis_terms, sample_context
 from calib.diagnosis.problem import Fit, Problem, base_estimates
 
 #: periods of the sinusoids of the time family: the span divided by these
@@ -66,13 +66,11 @@ def _context(prob: Problem):
     return sample_context(prob.geom)
 
 
-def _axis_column(prob: Problem, ctx, M: dict, sensor: str, i: int, term) -> np.ndarray:
-    """Observation column (n_obs,) of a per-sample input-referred term ``term`` on axis ``i`` of ``sensor``, at the
-    base K E ``M`` (reduced like the library's terms)."""
-    d = np.zeros((ctx.t.size, 3))
-    d[:, i] = term
-    return _reduce_term(prob.geom, ctx, d, sensor, np.diag(np.asarray(M[sensor], float)).copy(),
-                        TO_MODEL[prob.geom.units_in[sensor]])
+def _axis_columns(prob: Problem, ctx, M: dict, sensor: str, i: int, terms) -> np.ndarray:
+    """Observation columns (n_obs, k) of the per-sample input-referred terms ``terms`` on axis ``i`` of ``sensor``,
+    at the base K E ``M`` (reduced like the library's terms, :func:`calib.diagnosis.library.reduce_axis_terms`)."""
+    scale = float(np.asarray(M[sensor], float)[i, i]) * TO_MODEL[prob.geom.units_in[sensor]]
+    return reduce_axis_terms(prob.geom, ctx, terms, sensor, i, scale)
 
 
 #: the base K E of a unit scale factor (the reduction of a term is linear in K_i: see :func:`_unit_columns`)
@@ -82,7 +80,7 @@ _UNIT_M = {s: np.eye(3) for s in SENSORS}
 def _unit_columns(prob: Problem, key, build):
     """``build()`` -- observation columns of per-sample terms at unit scale factors (``_UNIT_M``) -- computed once
     per geometry under ``key``: the terms are functions of the window samples only, and the column of a term on
-    axis i at the base K E ``M`` is the unit column times ``M[i, i]`` (:func:`calib.diagnosis.library._reduce_term`
+    axis i at the base K E ``M`` is the unit column times ``M[i, i]`` (:func:`calib.diagnosis.library.reduce_axis_terms`
     scales the term by K_i before the linear reduction)."""
     return prob.geom.derived(("generic",) + tuple(key), build)
 
@@ -126,7 +124,7 @@ def _generic_families_unit(prob: Problem) -> list[dict]:
                 fams["rate"] = ([w**2, w**3, np.abs(w), w * np.abs(w)],
                                 "output depending on the rate beyond the linear model (w^2, w^3, |w|, w|w|)")
             for fam, (terms, desc) in fams.items():
-                S = np.column_stack([_axis_column(prob, ctx, M, s, i, term) for term in terms])
+                S = _axis_columns(prob, ctx, M, s, i, terms)
                 out.append({"family": fam, "sensor": s, "axis": AXES[i], "description": desc, "S": S})
     return out
 
@@ -200,7 +198,8 @@ def _vector_step_tests(prob: Problem, final: Fit, L, Q, r_perp) -> list[dict]:
     out = []
     for s in SENSORS:
         for i in range(3):
-            B = _unit_columns(prob, ("bias", s, i), lambda: _axis_column(prob, _context(prob), _UNIT_M, s, i, 1.0))
+            B = _unit_columns(prob, ("bias", s, i),
+                              lambda: _axis_columns(prob, _context(prob), _UNIT_M, s, i, [1.0])[:, 0])
             B = B * M[s][i, i]
             # every boundary at once: column j is the bias column on the windows from rank j on
             C = np.where(obs_rank[:, None] >= bounds[None, :], B[:, None], 0.0)
@@ -381,7 +380,7 @@ def _rival_columns_unit(prob: Problem, kind, sensor):
     xs = x / max(float(np.max(np.abs(x))), 1e-300)
     t = ctx.t
     tau = 2.0 * (t - t.min()) / max(float(np.ptp(t)), 1e-9) - 1.0
-    cols = []
+    cols, axis = [], []
     for i in range(3):
         if kind == "drift":
             terms = [tau, xs[:, i] * tau]
@@ -390,8 +389,9 @@ def _rival_columns_unit(prob: Problem, kind, sensor):
         else:  # time
             leg, per = _time_basis(t, float(t.min()), float(np.ptp(t)))
             terms = leg[:2] + per[:4]
-        cols += [(_axis_column(prob, ctx, M, sensor, i, term), i) for term in terms]
-    return np.column_stack([c for c, _ in cols]), np.array([i for _, i in cols])
+        cols.append(_axis_columns(prob, ctx, M, sensor, i, terms))
+        axis += [i] * len(terms)
+    return np.hstack(cols), np.array(axis)
 
 
 def _bic_with(prob: Problem, f0: Fit, S: np.ndarray, base=None) -> tuple[float, float]:

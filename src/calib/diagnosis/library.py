@@ -118,11 +118,28 @@ def _reduce_term(geom: Geometry, ctx: SampleContext, d, sensor: str, Kdiag, conv
     """Observation column (n_obs,) of a per-sample input-referred term d (n, 3) [registry units] of ``sensor``:
     output change K_i d_i conv, reduced per window (zeros for the other sensor's observations)."""
     views, blk = _reduce_plan(geom, ctx, sensor)
-    dd = d * (Kdiag * conv)[None, :]
-    red = np.concatenate([Wt @ dd[sl] for Wt, sl in views])   # (rows of all windows, 3 axes)
+    red = _reduce_windows(views, d * (Kdiag * conv)[None, :])   # (rows of all windows, 3 axes)
     out = np.zeros(geom.obs["n"])
-    out[blk] = red.T.ravel()                                   # axis by axis, windows in order
+    out[blk] = red.T.ravel()                                    # axis by axis, windows in order
     return out
+
+
+def reduce_axis_terms(geom: Geometry, ctx: SampleContext, terms, sensor: str, axis: int, scale: float) -> np.ndarray:
+    """Observation columns (n_obs, k) of k per-sample terms (each (n,) or a scalar) on sensor axis ``axis`` alone:
+    column j is :func:`_reduce_term` of ``d`` with ``d[:, axis] = terms[j]`` and ``K_axis conv = scale``, zeros
+    elsewhere -- all k reduced in one product per window instead of k (the generic bases of
+    :mod:`calib.diagnosis.generic` are sets of such terms)."""
+    views, _ = _reduce_plan(geom, ctx, sensor)
+    n = ctx.t.size
+    T = np.column_stack([np.broadcast_to(np.asarray(t, float), (n,)) for t in terms]) * scale
+    out = np.zeros((geom.obs["n"], T.shape[1]))
+    out[geom.obs["blocks"][(SENSORS.index(sensor), axis)]] = _reduce_windows(views, T)
+    return out
+
+
+def _reduce_windows(views, D) -> np.ndarray:
+    """The per-window reductions ``W^T D`` of per-node columns ``D`` (n, k), windows in order: (rows, k)."""
+    return np.concatenate([Wt @ D[sl] for Wt, sl in views])
 
 
 def _reduce_plan(geom: Geometry, ctx: SampleContext, sensor: str):
