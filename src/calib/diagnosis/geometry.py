@@ -522,14 +522,14 @@ def _reduced_one_by_one(geom, w, grid):
     return np.array(xa), np.array(xg)
 
 
-# ------------------------------------------------------------------ rotation windows: compiled sample loops
+# ------------------------------------------------------------------ rotation windows: a compiled sample loop
 # The reduced inputs of a rotation window under a clock offset are sums over every sample of the window, and the
 # time-offset candidate needs them on a grid of offsets (calib.diagnosis.library.OffsetModel): ~3 million
-# sample evaluations of the table-angle spline, its cosine and sine. Two compiled loops do, per sample, exactly
+# sample evaluations of the table-angle spline, its cosine and sine. A compiled loop does, per sample, exactly
 # the floating-point operations of :func:`window_inputs` in its order (the spline evaluated as scipy's PPoly
 # does: the interval with x[i] <= t < x[i+1], clamped to the end intervals, then c3 + c2 s + c1 s^2 + c0 s^3
-# summed in that order; no fused multiply-add), so the inputs are the same to the last bit
-# (tests/diagnosis/test_diagnosis_geometry.py); the reduction W^T f stays numpy's matrix product.
+# summed in that order; no fused multiply-add), so the angle terms are the same to the last bit; the inputs,
+# linear in them, are reduced by four matrix products (:func:`rotation_reduced`).
 def _angles_loop(kdt, deltas, s0, dt, bx, cc, out_c, out_s, out_rate):  # pragma: no cover - compiled
     """cos / sin of the table angle at the sample mid-times and the sample-average rate, (D, n) each."""
     m = bx.size
@@ -568,29 +568,15 @@ def _angles_loop(kdt, deltas, s0, dt, bx, cc, out_c, out_s, out_rate):  # pragma
             out_s[d, k] = math.sin(th[2])
 
 
-def _inputs_loop(c, s, rate, vf, uxf, af, vw, uxw, aw, u, deg_per_h, gyro_unit, f, om):  # pragma: no cover
-    """f and omega_ib (D, n, 3) from the angle terms: :func:`_rodrigues_T` and the table rate, elementwise."""
-    D, n = c.shape
-    for d in range(D):
-        for k in range(n):
-            cc = c[d, k]
-            ss = s[d, k]
-            omc = 1.0 - cc
-            rr = rate[d, k]
-            for j in range(3):
-                f[d, k, j] = vf[j] * cc - uxf[j] * ss + af[j] * omc
-                om[d, k, j] = (vw[j] * cc - uxw[j] * ss + aw[j] * omc) + rr * u[j] / deg_per_h * gyro_unit
-
-
 _KERNELS: list = []
 
 
 def _kernels():
-    """The two loops compiled by numba (cached on disk beside this module; imported and compiled on first use)."""
+    """The loop compiled by numba (cached on disk beside this module; imported and compiled on first use)."""
     if not _KERNELS:
         import numba
 
-        _KERNELS.extend(numba.njit(cache=True, nogil=True)(fn) for fn in (_angles_loop, _inputs_loop))
+        _KERNELS.append(numba.njit(cache=True, nogil=True)(_angles_loop))
     return _KERNELS
 
 
@@ -604,7 +590,7 @@ def rotation_angles(geom: Geometry, w: Window, deltas):
     deltas = np.ascontiguousarray(deltas, dtype=float)
     shape = (deltas.size, w.n)
     c, s, r = np.empty(shape), np.empty(shape), np.empty(shape)
-    angles_loop, _ = _kernels()
+    angles_loop, = _kernels()
     args = (np.arange(w.n) * geom.dt, float(geom.sample_start_s), float(geom.dt),
             np.ascontiguousarray(w.spline.x, dtype=float), np.ascontiguousarray(w.spline.c, dtype=float))
 
@@ -650,26 +636,30 @@ def _cross(u, v):
 
 def rotation_reduced(geom: Geometry, w: Window, deltas, ga, wg, angles=None):
     """Reduced inputs (len(deltas), rows, 3) of accel and gyro of rotation window ``w`` under each clock offset,
-    for the site vectors ``ga``, ``wg`` (:func:`site_vectors`): the numbers of ``W^T`` :func:`window_inputs`,
-    offset by offset. ``angles``: :func:`rotation_angles` of these offsets when the caller has them."""
+    for the site vectors ``ga``, ``wg`` (:func:`site_vectors`): ``W^T`` :func:`window_inputs`, offset by offset.
+    ``angles``: :func:`rotation_angles` of these offsets when the caller has them.
+
+    The inputs are linear in the angle terms: f = v cos(theta) - (u x v) sin(theta) + (u.v) u (1 - cos(theta)) for
+    v = C0^T g (and C0^T omega_ie plus the table rate along u for the gyros, :func:`_rodrigues_T`), so
+    ``W^T f = (W^T cos) v - (W^T sin) (u x v) + (W^T (1 - cos)) (u.v) u``: four products of the window's weights
+    with the angle terms of every offset at once, instead of f sample by sample and offset by offset (the same
+    numbers to rounding, ~1e-15 relative: tests/cli/test_diagnose_fast_paths.py)."""
     deltas = np.asarray(deltas, dtype=float)
-    _, inputs_loop = _kernels()
     u, C0 = np.asarray(w.axis, float), w.attitude
     vf, vw = C0.T @ ga, C0.T @ wg
-    consts = (vf, _cross(u, vf), (u @ vf) * u, vw, _cross(u, vw), (u @ vw) * u, u, float(earth.DEG_PER_H),
-              float(TO_MODEL[geom.units_in["gyro"]]))
     ra, rg = rows_of("accel", w), rows_of("gyro", w)
-    Wa, Wg = w.W[:, :ra].T, w.W[:, :rg].T
+    Wt = w.W[:, :max(ra, rg)].T
+    terms_a = np.stack([vf, -_cross(u, vf), (u @ vf) * u])                       # rows: cos, sin, 1 - cos
+    terms_g = np.stack([vw, -_cross(u, vw), (u @ vw) * u,
+                        u / float(earth.DEG_PER_H) * float(TO_MODEL[geom.units_in["gyro"]])])   # and the rate
     xa, xg = np.empty((deltas.size, ra, 3)), np.empty((deltas.size, rg, 3))
     step = max(1, _CHUNK // max(w.n, 1))
     for d0 in range(0, deltas.size, step):
         dd = deltas[d0:d0 + step]
         c, s, r = angles if angles is not None and dd.size == deltas.size else rotation_angles(geom, w, dd)
-        f, om = np.empty((dd.size, w.n, 3)), np.empty((dd.size, w.n, 3))
-        inputs_loop(c, s, r, *consts, f, om)
-        for i in range(dd.size):
-            xa[d0 + i] = Wa @ f[i]
-            xg[d0 + i] = Wg @ om[i]
+        red = np.stack([Wt @ a.T for a in (c, s, 1.0 - c, r)], axis=-1)      # (rows, offsets, 4 angle terms)
+        xa[d0:d0 + dd.size] = np.einsum("rdk,kj->drj", red[:ra, :, :3], terms_a)
+        xg[d0:d0 + dd.size] = np.einsum("rdk,kj->drj", red[:rg], terms_g)
     return xa, xg
 
 
