@@ -131,9 +131,9 @@ def reduce_axis_terms(geom: Geometry, ctx: SampleContext, terms, sensor: str, ax
     :mod:`calib.diagnosis.generic` are sets of such terms)."""
     views, _ = _reduce_plan(geom, ctx, sensor)
     n = ctx.t.size
-    T = np.column_stack([np.broadcast_to(np.asarray(t, float), (n,)) for t in terms]) * scale
-    out = np.zeros((geom.obs["n"], T.shape[1]))
-    out[geom.obs["blocks"][(SENSORS.index(sensor), axis)]] = _reduce_windows(views, T)
+    T = np.stack([np.broadcast_to(np.asarray(t, float), (n,)) for t in terms]) * scale   # (k, n): rows contiguous
+    out = np.zeros((geom.obs["n"], T.shape[0]))
+    out[geom.obs["blocks"][(SENSORS.index(sensor), axis)]] = _reduce_windows(views, T.T)
     return out
 
 
