@@ -155,7 +155,8 @@ def gm_part(geom: Geometry, sensor: str, tc: float):
     means = starts[:-1]
     A[np.ix_(means, means)] = noisecov.gm_mean_cov([geom.time_s[w.i0] for w in ws], [w.n * geom.dt for w in ws], tc)
     # harmonic rows: within-window random-walk equivalent (K^2 = 2/tc), uncorrelated with the means
-    _, _, AK = covariance_parts(geom, sensor, rw_within_only=True)
+    _, _, AK = geom.derived(("covariance_parts_within", sensor),
+                            lambda: covariance_parts(geom, sensor, rw_within_only=True))
     for j in range(len(ws)):
         if rows[j] > 1:
             sl = slice(starts[j] + 1, starts[j] + rows[j])

@@ -102,14 +102,17 @@ def gm_mean_cov(t0, T, tc):
     x = T / tc
     C = np.diag(2.0 * tc**2 / T**2 * (x - 1.0 + np.exp(-x)))
     order = np.argsort(a0)
-    for ii, j in enumerate(order):
-        for k in order[ii + 1:]:
-            p0, p1, q0, q1 = a0[j], a1[j], a0[k], a1[k]
-            if q0 < p1 - 1e-9 * max(1.0, abs(p1)):
-                raise ValueError(f"windows overlap: [{p0}, {p1}] and [{q0}, {q1}] s")
-            v = tc**2 * (math.exp(-(q0 - p1) / tc) - math.exp(-(q0 - p0) / tc) - math.exp(-(q1 - p1) / tc)
-                         + math.exp(-(q1 - p0) / tc)) / (T[j] * T[k])
-            C[j, k] = C[k, j] = v
+    J, K = np.triu_indices(a0.size, 1)          # every pair, the earlier-starting window j first
+    j, k = order[J], order[K]
+    p0, p1, q0, q1 = a0[j], a1[j], a0[k], a1[k]
+    bad = np.flatnonzero(q0 < p1 - 1e-9 * np.maximum(1.0, np.abs(p1)))
+    if bad.size:
+        i = bad[0]
+        raise ValueError(f"windows overlap: [{p0[i]}, {p1[i]}] and [{q0[i]}, {q1[i]}] s")
+    v = tc**2 * (np.exp(-(q0 - p1) / tc) - np.exp(-(q0 - p0) / tc) - np.exp(-(q1 - p1) / tc)
+                 + np.exp(-(q1 - p0) / tc)) / (T[j] * T[k])
+    C[j, k] = v
+    C[k, j] = v
     return C
 
 
