@@ -195,7 +195,9 @@ def _compare_values(va: dict, vb: dict) -> tuple[float, str]:
                 if math.isinf(r):
                     return r, f"{k}: shapes or NaN positions differ"
                 continue
-            if x.shape != y.shape or x.tobytes() != y.tobytes():
+            same = x.shape == y.shape and (x.tolist() == y.tolist() if x.dtype.kind == "O" or y.dtype.kind == "O"
+                                           else x.dtype == y.dtype and x.tobytes() == y.tobytes())
+            if not same:
                 return math.inf, f"{k}: non-float values differ"
             continue
         if isinstance(x, float) and isinstance(y, float) and not (isinstance(x, bool) or isinstance(y, bool)):

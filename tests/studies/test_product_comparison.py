@@ -25,6 +25,9 @@ def _nc(path: Path, x: np.ndarray, label: str = "a", commit: str = "abc"):
         v[:] = x
         k = nc.createVariable("k", "i4", ("n",))
         k[:] = np.arange(x.size)
+        name = nc.createVariable("name", str, ("n",))   # a string variable (read as an object array)
+        for i in range(x.size):
+            name[i] = f"window {i}"
 
 
 def _folder(root: Path, *, nc_scale=1.0, nc_label="a", json_p=0.25, md_value="0.1234", md_word="pass",
