@@ -58,11 +58,27 @@ def _within(got, ref_bound):
     return bool(np.all(np.abs(got - ref) <= bound)) and bool(np.all(bound < 1e-9 * np.max(np.abs(ref))))
 
 
-@pytest.mark.parametrize("convention", ["interval_start", "interval_centre"])
-def test_rotation_inputs_are_those_of_window_inputs(session, convention):
+def _tilt(geom):
+    """Every rotation window's attitude turned 30 deg about a horizontal axis: the session's axes are all vertical,
+    where the accelerometers' sin and (1 - cos) terms vanish or cancel; tilted, every term of the sum is seen."""
+    c, s = np.cos(np.radians(30.0)), np.sin(np.radians(30.0))
+    R = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    for w in geom.rotation:
+        w.attitude = R @ w.attitude
+    return geom
+
+
+@pytest.mark.parametrize("convention,tilted", [("interval_start", False), ("interval_centre", False),
+                                               ("interval_start", True)])
+def test_rotation_inputs_are_those_of_window_inputs(session, convention, tilted):
     ds = session.copy()
     ds.attrs["sample_time_convention"] = convention
     geom = geometry.build_geometry(ds)
+    if tilted:
+        geom = _tilt(geom)
+        ga, _ = geometry.site_vectors(geom)
+        assert all(np.linalg.norm(np.cross(w.axis, w.attitude.T @ ga)) > 0.4 * np.linalg.norm(ga)
+                   for w in geom.rotation)
     assert geom.rotation and all(w.spline is not None for w in geom.rotation)
     grid = np.arange(-geom.max_offset_s, geom.max_offset_s + 0.5 * 0.0125, 0.0125)
     vals = geometry.offset_grid_inputs(geom, grid)
