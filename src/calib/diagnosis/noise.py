@@ -155,8 +155,7 @@ def gm_part(geom: Geometry, sensor: str, tc: float):
     means = starts[:-1]
     A[np.ix_(means, means)] = noisecov.gm_mean_cov([geom.time_s[w.i0] for w in ws], [w.n * geom.dt for w in ws], tc)
     # harmonic rows: within-window random-walk equivalent (K^2 = 2/tc), uncorrelated with the means
-    _, _, AK = geom.derived(("covariance_parts_within", sensor),
-                            lambda: covariance_parts(geom, sensor, rw_within_only=True))
+    _, _, AK = covariance_parts(geom, sensor, rw_within_only=True)
     for j in range(len(ws)):
         if rows[j] > 1:
             sl = slice(starts[j] + 1, starts[j] + rows[j])
@@ -407,7 +406,32 @@ def reml_slow(geom: Geometry, noise: NoiseFit, y, X, parts, cache=None, tcs=SLOW
 
 def covariance_parts(geom: Geometry, sensor: str, rw_within_only: bool = False):
     """Geometry-only matrices (A_N, A_Q, A_K) over one axis' observations of ``sensor`` so that the
-    covariance is ``N^2 A_N + Q^2 A_Q + K^2 A_K`` (formulas in the module docstring)."""
+    covariance is ``N^2 A_N + Q^2 A_Q + K^2 A_K`` (formulas in the module docstring). ``rw_within_only``: A_K
+    within each window alone (no cross-window random-walk terms). The within-window parts are derived once per
+    geometry and sensor (:meth:`Geometry.derived`) and shared by both forms; the callers only read them."""
+    AN, AQ, AK_within, S, I, tmid0, starts, rows = geom.derived(("covariance_parts_within", sensor),
+                                                               lambda: _within_window_parts(geom, sensor))
+    if rw_within_only:
+        return AN, AQ, AK_within
+    ws = geom.windows
+    AK = AK_within.copy()
+    # cross-window random-walk terms: Cov = K^2 S_later I_earlier
+    for j, w in enumerate(ws):
+        slj = slice(starts[j], starts[j] + rows[j])
+        for k in range(j + 1, len(ws)):
+            slk = slice(starts[k], starts[k] + rows[k])
+            if tmid0[slk.start] >= tmid0[slj.start]:
+                blk = np.outer(I[slj], S[slk])
+            else:
+                blk = np.outer(S[slj], I[slk])
+            AK[slj, slk] = blk
+            AK[slk, slj] = blk.T
+    return AN, AQ, AK
+
+
+def _within_window_parts(geom: Geometry, sensor: str):
+    """:func:`covariance_parts` within each window, and what its cross-window terms need: per observation row the
+    sum of weights S, int_0^inf W(u) du I, the window's first mid-time; the windows' row offsets and counts."""
     dt = geom.dt
     ws = geom.windows
     rows = [rows_of(sensor, w) for w in ws]
@@ -435,20 +459,7 @@ def covariance_parts(geom: Geometry, sensor: str, rw_within_only: bool = False):
         S[sl] = s_w
         I[sl] = s_w * t_first + T1.sum(axis=0) * dt
         tmid0[sl] = t_first
-    if rw_within_only:
-        return AN, AQ, AK
-    # cross-window random-walk terms: Cov = K^2 S_later I_earlier
-    for j, w in enumerate(ws):
-        slj = slice(starts[j], starts[j] + rows[j])
-        for k in range(j + 1, len(ws)):
-            slk = slice(starts[k], starts[k] + rows[k])
-            if tmid0[slk.start] >= tmid0[slj.start]:
-                blk = np.outer(I[slj], S[slk])
-            else:
-                blk = np.outer(S[slj], I[slk])
-            AK[slj, slk] = blk
-            AK[slk, slj] = blk.T
-    return AN, AQ, AK
+    return AN, AQ, AK, S, I, tmid0, starts, rows
 
 
 def covariance_blocks(geom: Geometry, noise: NoiseFit, parts, cache=None):
