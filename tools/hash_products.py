@@ -193,20 +193,20 @@ def _compare_values(va: dict, vb: dict) -> tuple[float, str]:
                 r = _rel(x, y)
                 worst = max(worst, r)
                 if math.isinf(r):
-                    return r, f"{k}: shapes or NaN positions differ"
+                    return r, f"{k}: shapes, NaN or inf positions differ, or zero against non-zero"
                 continue
             same = x.shape == y.shape and (x.tolist() == y.tolist() if x.dtype.kind == "O" or y.dtype.kind == "O"
                                            else x.dtype == y.dtype and x.tobytes() == y.tobytes())
             if not same:
                 return math.inf, f"{k}: non-float values differ"
             continue
-        if isinstance(x, float) and isinstance(y, float) and not (isinstance(x, bool) or isinstance(y, bool)):
+        if isinstance(x, float) and isinstance(y, float):   # (NaN against NaN: _rel gives 0)
             r = _rel([x], [y])
             worst = max(worst, r)
             if math.isinf(r):
                 return r, f"{k}: {x!r} vs {y!r}"
             continue
-        if x != y and not (isinstance(x, float) and isinstance(y, float) and math.isnan(x) and math.isnan(y)):
+        if x != y:
             return math.inf, f"{k}: {str(x)[:60]!r} vs {str(y)[:60]!r}"
     return worst, ""
 
@@ -226,7 +226,7 @@ def _compare_text(a: str, b: str) -> tuple[float, str]:
     ta, tb = _NUMBER.split(a), _NUMBER.split(b)
     na, nb = _NUMBER.findall(a), _NUMBER.findall(b)
     if ta != tb or len(na) != len(nb):
-        for i, (x, y) in enumerate(zip(ta, tb)):
+        for x, y in zip(ta, tb):
             if x != y:
                 return math.inf, f"text differs near {x[:40]!r} / {y[:40]!r}"
         return math.inf, "text differs (length)"
