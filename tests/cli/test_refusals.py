@@ -184,6 +184,8 @@ def test_missing_folder_and_truncated_recordings(tmp_path, capsys, count_session
     cut.write_bytes(Path(count_session).read_bytes()[:5000])
     code, err = run(capsys, "validate", cut)
     assert code == 2 and "truncated or not netCDF" in err
+    # a problem of the whole file names the file, not a placeholder variable
+    assert f"{cut}: not a readable netCDF file" in err and "variable" not in err
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root reads and writes regardless of permissions")

@@ -87,11 +87,14 @@ class RecordingError(InputError):
     """
 
     def __init__(self, path, variable, problem, fix=""):
+        # variable "-": a problem of the file as a whole (missing, unreadable, truncated), named without a variable
         self.path, self.variable, self.problem = str(path), variable, problem
-        super().__init__(problem, file=str(path), field=f"variable '{variable}'", fix=fix or None)
+        super().__init__(problem, file=str(path), field=None if variable == "-" else f"variable '{variable}'",
+                         fix=fix or None)
 
     def text(self) -> str:
-        msg = f"{self.path}: variable '{self.variable}': {self.problem}"
+        where = "" if self.variable == "-" else f"variable '{self.variable}': "
+        msg = f"{self.path}: {where}{self.problem}"
         return msg + (f" -- fix: {self.fix}" if self.fix else "")
 
 
