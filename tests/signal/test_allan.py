@@ -187,3 +187,51 @@ def test_chi2_quantiles_are_scipy_stats_to_the_bit():
         a = 1.0 - conf
         for q in (a / 2.0, 1.0 - a / 2.0):
             assert np.array_equal(distributions.chi2_ppf(q, edf), stats.chi2.ppf(q, edf))
+
+
+# an AVAR curve dominated by the rate ramp (six decades over eleven octaves), with the weights of the noise-model fit:
+# scipy's NNLS stops at its default iteration limit (3 per unknown) on all five terms of eq. (4)
+RAMP_AVAR = np.array([4.359831914074004e-07, 1.023874884415979e-06, 5.531561912756206e-06, 1.2432195905469483e-05,
+                      4.849817306550437e-05, 0.0003175007319624079, 0.0013544398813521528, 0.0037158885170477407,
+                      0.02141087815713679, 0.054163801777238486, 0.32171505102747755, 1.174881897222426])
+RAMP_TAU = 0.02 * 2.0 ** np.arange(12)
+RAMP_EDF = np.linspace(1000.0, 2.0, 12)
+
+
+def _exact_nnls(M, v):
+    """The NNLS minimiser by its definition: the least-residual least-squares solution, over every support, whose
+    coefficients are all positive (the optimum is the unconstrained solution on its own support)."""
+    import itertools
+
+    best = (float(v @ v), np.zeros(M.shape[1]))
+    for k in range(1, M.shape[1] + 1):
+        for S in itertools.combinations(range(M.shape[1]), k):
+            cs = np.linalg.lstsq(M[:, S], v, rcond=None)[0]
+            if np.all(cs > 0):
+                c = np.zeros(M.shape[1])
+                c[list(S)] = cs
+                r = float(np.sum((M @ c - v) ** 2))
+                if r < best[0]:
+                    best = (r, c)
+    return best[1]
+
+
+def test_nnls_reaches_the_optimum_where_the_default_iteration_limit_stops():
+    from scipy import optimize
+
+    w = np.sqrt(RAMP_EDF / 2.0) / RAMP_AVAR
+    M, v = allan._basis(RAMP_TAU) * w[:, None], RAMP_AVAR * w
+    with pytest.raises(RuntimeError):   # the case is the hard one: scipy's default limit stops short here
+        optimize.nnls(M, v)
+    c, exact = allan.nnls(M, v), _exact_nnls(M, v)
+    assert np.all(c >= 0)
+    np.testing.assert_allclose(c, exact, rtol=1e-6, atol=1e-12 * np.abs(exact).max())
+    assert np.sum((M @ c - v) ** 2) <= np.sum((M @ exact - v) ** 2) * (1 + 1e-9)
+    # and the whole noise-model fit of that curve: finite, non-negative terms, the ramp R the largest contribution
+    # at the longest tau (the curve climbs as tau^2 there)
+    a = np.sqrt(RAMP_AVAR)[:, None]
+    res = allan.AllanResult(tau=RAMP_TAU, adev=a, lo=a, hi=a, edf=RAMP_EDF, nterms=np.ones(12), fs=50.0,
+                            confidence=0.95)
+    m = res.noise_model()
+    terms = allan._basis(RAMP_TAU[-1:])[0] * np.array([m.Q[0], m.N[0], m.B[0], m.K[0], m.R[0]]) ** 2
+    assert np.all(np.isfinite(terms)) and np.all(terms >= 0) and np.argmax(terms) == 4

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from scipy import linalg, optimize
+from scipy import linalg
 
 from calib.diagnosis.blas import solve_lower
 from calib.diagnosis.geometry import SENSORS, DiagnosisInputError, Geometry, rows_of
@@ -104,15 +104,15 @@ def fit_noise(geom: Geometry, y: dict, pulse_counter: dict | None = None) -> Noi
             for a in range(3):
                 av = A.avar[sel, a] - 3.0 * q**2 / tau**2
                 w = np.sqrt(edf / 2.0) / A.avar[sel, a]
-                c, _ = optimize.nnls(B * w[:, None], av * w)
+                c = allan.nnls(B * w[:, None], av * w)
                 for _ in range(2):
                     w = np.sqrt(edf / 2.0) / np.maximum(B @ c + 3.0 * q**2 / tau**2, 1e-300)
-                    c, _ = optimize.nnls(B * w[:, None], av * w)
+                    c = allan.nnls(B * w[:, None], av * w)
                 if not c[0] > 0:
                     # short static segments: few taus above 1 s, and the rate random walk took all of the
                     # excess over quantisation; the white level is then fitted alone (K = 0) -- a channel is
                     # flat only when its Allan variance never exceeds the quantisation's
-                    c1, _ = optimize.nnls(B[:, :1] * w[:, None], av * w)
+                    c1 = allan.nnls(B[:, :1] * w[:, None], av * w)
                     c = np.array([c1[0], 0.0])
                 if not c[0] > 0:
                     # white noise below what the quantisation lets the Allan deviation resolve: its upper bound

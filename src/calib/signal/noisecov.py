@@ -242,7 +242,7 @@ def _nnls_fit(A, av, edf, fixed):
     w = np.sqrt(edf / 2.0) / av
     c = np.zeros(A.shape[1])
     for _ in range(8):
-        c, _ = optimize.nnls(A * w[:, None], (av - fixed) * w)
+        c = allan.nnls(A * w[:, None], (av - fixed) * w)
         model = np.maximum(A @ c + fixed, 1e-300)
         w = np.sqrt(edf / 2.0) / model
     return c, gamma_deviance(av, model, edf), model
