@@ -221,8 +221,8 @@ def nnls(M, v) -> np.ndarray:
     """``argmin ||M c - v||`` subject to ``c >= 0`` (Lawson-Hanson, ``scipy.optimize.nnls``), allowed
     :data:`NNLS_ITERATIONS` iterations per unknown. scipy's default of 3 stops short on ill-conditioned AVAR fits
     (all five terms of eq. (4) on a curve that climbs six decades, condition ~3e7: 16 iterations for 5 unknowns
-    reach the optimum, the default allows 15); a problem that still does not converge is an :class:`AllanError`, not a crash. Where the default
-    limit sufficed, the same iterations and the same numbers."""
+    reach the optimum, the default allows 15); a problem that still does not converge is an :class:`AllanError`,
+    not a crash. Where the default limit sufficed, the same iterations and the same numbers."""
     M = np.asarray(M, dtype=float)
     try:
         return optimize.nnls(M, v, maxiter=NNLS_ITERATIONS * M.shape[1])[0]
