@@ -52,32 +52,40 @@ def _scrub(obj):
     return obj
 
 
+def _netcdf_walk(g, pre=""):
+    """The parts of netCDF group ``g`` in a fixed order, each ``(kind, prefix, name, value)``: its attributes but
+    the volatile ones (``"attr"``, the value), its variables by name (``"var"``, the variable, unscaled and
+    unmasked), then each subgroup (``"group"``, None) followed by its own parts (prefix ``pre + name + "/"``)."""
+    for k in sorted(g.ncattrs()):
+        if k not in VOLATILE:
+            yield "attr", pre, k, g.getncattr(k)
+    for name in sorted(g.variables):
+        v = g.variables[name]
+        v.set_auto_maskandscale(False)
+        yield "var", pre, name, v
+    for name in sorted(g.groups):
+        yield "group", pre, name, None
+        yield from _netcdf_walk(g.groups[name], f"{pre}{name}/")
+
+
 def hash_netcdf(path: Path) -> str:
     import netCDF4
     import numpy as np
 
     h = hashlib.sha256()
-
-    def group(g):
-        for k in sorted(g.ncattrs()):
-            if k in VOLATILE:
-                continue
-            h.update(f"attr {k}={g.getncattr(k)!r}\n".encode())
-        for name in sorted(g.variables):
-            v = g.variables[name]
-            v.set_auto_maskandscale(False)
-            h.update(f"var {name} {v.dimensions} {v.dtype}\n".encode())
-            for k in sorted(v.ncattrs()):
-                h.update(f"  {k}={v.getncattr(k)!r}\n".encode())
-            data = v[...]
-            h.update(np.ascontiguousarray(np.asarray(data)).tobytes() if v.dtype != str
-                     else repr(list(np.asarray(data).ravel())).encode())
-        for name in sorted(g.groups):
-            h.update(f"group {name}\n".encode())
-            group(g.groups[name])
-
     with netCDF4.Dataset(path) as nc:
-        group(nc)
+        for kind, _, name, x in _netcdf_walk(nc):
+            if kind == "attr":
+                h.update(f"attr {name}={x!r}\n".encode())
+            elif kind == "group":
+                h.update(f"group {name}\n".encode())
+            else:
+                h.update(f"var {name} {x.dimensions} {x.dtype}\n".encode())
+                for k in sorted(x.ncattrs()):
+                    h.update(f"  {k}={x.getncattr(k)!r}\n".encode())
+                data = x[...]
+                h.update(np.ascontiguousarray(np.asarray(data)).tobytes() if x.dtype != str
+                         else repr(list(np.asarray(data).ravel())).encode())
     return h.hexdigest()
 
 
@@ -146,24 +154,19 @@ def _rel(a, b) -> float:
 
 
 def _netcdf_values(path: Path) -> dict:
+    """The parts :func:`hash_netcdf` hashes, as values to compare: ``prefix@attr``, ``prefix+name#meta`` (dims,
+    dtype, attributes) and ``prefix+name`` (the values)."""
     import netCDF4
     import numpy as np
 
     out = {}
-
-    def group(g, pre):
-        for k in g.ncattrs():
-            if k not in VOLATILE:
-                out[f"{pre}@{k}"] = g.getncattr(k)
-        for name, v in g.variables.items():
-            v.set_auto_maskandscale(False)
-            out[f"{pre}{name}#meta"] = (v.dimensions, str(v.dtype), {k: repr(v.getncattr(k)) for k in v.ncattrs()})
-            out[f"{pre}{name}"] = np.asarray(v[...])
-        for name, sub in g.groups.items():
-            group(sub, f"{pre}{name}/")
-
     with netCDF4.Dataset(path) as nc:
-        group(nc, "")
+        for kind, pre, name, x in _netcdf_walk(nc):
+            if kind == "attr":
+                out[f"{pre}@{name}"] = x
+            elif kind == "var":
+                out[f"{pre}{name}#meta"] = (x.dimensions, str(x.dtype), {k: repr(x.getncattr(k)) for k in x.ncattrs()})
+                out[f"{pre}{name}"] = np.asarray(x[...])
     return out
 
 

@@ -93,8 +93,7 @@ class RecordingError(InputError):
                          fix=fix or None)
 
     def text(self) -> str:
-        where = "" if self.variable == "-" else f"variable '{self.variable}': "
-        msg = f"{self.path}: {where}{self.problem}"
+        msg = ": ".join([self.path] + ([self.field] if self.field else []) + [self.problem])
         return msg + (f" -- fix: {self.fix}" if self.fix else "")
 
 
