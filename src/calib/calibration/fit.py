@@ -5,8 +5,8 @@ counts per sample / dt], x input in the body frame [input unit: g for accelerome
 Applying a result to raw output: ``N = counts / dt`` (increment channels) or the sample itself (rate
 channels), then ``x = (K E)^-1 (N - b)`` (:meth:`CalibrationResult.apply`).
 
-Methods
--------
+The methods
+-----------
 Accelerometer
 
 * :func:`separate_accel` — classical (separate) calibration, the gold-standard baseline: vector observations
@@ -443,7 +443,7 @@ def gyro_components(pairs: RotationPairs, static: StaticMeans | None = None, *, 
     'static' = N_m - K E C_n^b omega_ie^n at the static positions; 'both'; 'norm' = static norm (eq. 7) with
     K E held, Liu 2021 §3.3 (needs no attitudes); 'auto' = 'both' if attitudes are known, else 'norm'.
     Covariance: the estimator is linear in the means, propagated exactly (norm: linearised). ``cov_obs``
-    (3, n, n): full covariance per axis of the means ordered [plus (J), minus (J), static (M)] [output unit^2]
+    (3, n, n): full covariance per axis of the means ordered ``[plus (J), minus (J), static (M)]`` [output unit^2]
     (``calib.signal.noisecov.eq25_cov``; correlated bias instability); not for ``bias_from='norm'``.
     """
     d, sd = pairs.difference()

@@ -15,8 +15,8 @@ Every method has the signature::
 * ``Result``: best ``x``, its value ``fun``, ``history`` (EG + 1,) best value after each generation (index 0 =
   initial population), ``nfev``.
 
-Methods
--------
+The methods
+-----------
 * :func:`de_rand1` — DE/rand/1/bin: mutation eq. 11 (F = 1.2), binomial crossover eq. 12 (CR = 0.6), greedy
   selection eq. 13.
 * :func:`de_current_to_best1` — DE/current-to-best/1 (eq. 14), same F, CR.

@@ -94,7 +94,7 @@ def gm_avar(tau, sigma, tc):
 
 
 def gm_mean_cov(t0, T, tc):
-    """Covariance (M, M) of the means of windows [t0_j, t0_j + T_j] [s] of a unit-variance Gauss-Markov process
+    """Covariance (M, M) of the means of windows ``[t0_j, t0_j + T_j]`` [s] of a unit-variance Gauss-Markov process
     of correlation time ``tc`` [s], eq. (2). Windows must not overlap (touching is fine)."""
     a0 = np.asarray(t0, dtype=float)
     T = np.asarray(T, dtype=float)
