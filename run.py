@@ -79,7 +79,7 @@ def setup():
     spec = (ROOT / "pyproject.toml").read_bytes()
     if not stamp.exists() or stamp.read_bytes() != spec:
         sh(PY, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
-        sh(PY, "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[test]")
+        sh(PY, "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[workflow,test]")
         stamp.write_bytes(spec)
     env = dict(os.environ)
     env["PATH"] = f"{BIN}{os.pathsep}{env.get('PATH', '')}"

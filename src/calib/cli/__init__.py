@@ -36,8 +36,8 @@ import yaml
 
 from calib import __version__
 from calib.core.errors import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_SIGINT, EXIT_SIGPIPE, CalibError,
-                               InputError, ResultCheckError, Terminated, input_file, load_mapping, schema_error,
-                               yaml_problem)
+                               InputError, ResultCheckError, Terminated, fill_schema_defaults, input_file,
+                               load_mapping, schema_error, yaml_problem)
 
 #: the study configuration of the source tree calib runs from (not of the working directory)
 DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "config" / "config.yaml"
@@ -79,8 +79,6 @@ def _output_dir(path) -> Path:
 def _config(path):
     """The study config (``--config``, default: the source tree's ``config/config.yaml``), checked against the
     packaged schema (:mod:`calib.resources`, the file the workflow validates with) with its defaults filled."""
-    import importlib.resources
-
     from calib import resources
 
     path = DEFAULT_CONFIG if path is None else Path(path)
@@ -92,13 +90,10 @@ def _config(path):
     err = schema_error(cfg, yaml.safe_load(schema), path, path.read_text(), f"calib/resources/{resources.SCHEMA}")
     if err is not None:
         raise err
-    from snakemake.utils import validate
-
-    with importlib.resources.as_file(importlib.resources.files(resources).joinpath(resources.SCHEMA)) as sp:
-        try:
-            validate(cfg, str(sp))  # fills the schema's defaults
-        except Exception as exc:  # noqa: BLE001 - any other refusal: its first line only, never the dump
-            raise InputError(str(exc).strip().splitlines()[0][:200], file=path) from None
+    try:
+        fill_schema_defaults(cfg, yaml.safe_load(schema))  # the workflow's rule (snakemake's validate)
+    except Exception as exc:  # noqa: BLE001 - any other refusal: its first line only, never the dump
+        raise InputError(str(exc).strip().splitlines()[0][:200], file=path) from None
     return cfg
 
 

@@ -194,3 +194,27 @@ def schema_error(data, schema: dict, path, text: str = "", schema_name: str = "t
     line = yaml_line(text, keys) if text else None
     return InputError(msg + (f"; allowed: {allowed}" if allowed else ""), file=path,
                       field=key + (f" (line {line})" if line else ""), fix=f"correct '{key}' ({schema_name})")
+
+
+def fill_schema_defaults(data: dict, schema: dict) -> dict:
+    """``data`` with every ``default`` of ``schema`` filled in where the key is absent, in place (and returned).
+
+    The same rule as the workflow's ``snakemake.utils.validate(config, schema)``: the recipe of the jsonschema
+    documentation (a ``properties`` validator extended to set the defaults of absent keys before it validates
+    them), so a config read by the ``calib`` command and by the workflow gets the same values. Without snakemake:
+    the library and its command line do not need the workflow's dependencies."""
+    import jsonschema
+
+    base = jsonschema.validators.validator_for(schema)
+    set_props = base.VALIDATORS["properties"]
+
+    def properties(validator, props, instance, sub):
+        if isinstance(instance, dict):
+            for name, subschema in props.items():
+                if isinstance(subschema, dict) and "default" in subschema:
+                    instance.setdefault(name, subschema["default"])
+        yield from set_props(validator, props, instance, sub)
+
+    filler = jsonschema.validators.extend(base, {"properties": properties})
+    filler(schema).validate(data)
+    return data
