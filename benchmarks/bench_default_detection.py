@@ -1,6 +1,6 @@
 """The field calibration's default static-interval detection (no settings) against the tuned settings (the
 detection on the true static intervals), over the static-pose protocols of ``tests/fieldcal/conftest.py``
-(issue 19, item 2): the slow, complete version of ``tests/fieldcal/test_default_detection.py``, with the same
+(defaults that work): the slow, complete version of ``tests/fieldcal/test_default_detection.py``, with the same
 judgement (:func:`test_default_detection.judge`: run as ``calib fieldcal`` runs it; good = exit 0, residual over
 the true static samples within 1 % of the tuned one's, accel scale factors within 3 stated standard errors of the
 truth widened by the tuned settings' own error).

@@ -56,7 +56,7 @@ def one_run(tree: Path, rev: str, args: list, cwd: Path) -> tuple[float, float]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("rev_a", help="the revision before (e.g. the round's first commit)")
+    ap.add_argument("rev_a", help="the revision before (e.g. the first commit of a change)")
     ap.add_argument("rev_b", help="the revision after (e.g. HEAD)")
     ap.add_argument("--pairs", type=int, default=6, help="runs of each revision, in turn (default 6)")
     ap.add_argument("--cwd", default=".", help="the folder the command runs in (default: the current one)")

@@ -59,7 +59,7 @@ MIKOFF = ("mikoff_imu0", "mikoff_imu1", "mikoff_imu2")
 
 
 def _limits_ok(rep):
-    """No reported finding beyond physical sense, no collapsed chi-square (the acceptance of issue 20)."""
+    """No reported finding beyond physical sense, no collapsed chi-square (the acceptance criteria of a real-recording proof base)."""
     from calib.diagnosis.selection import CHI2_COLLAPSE, PHYSICAL_LIMITS
 
     for f in rep["found"]:

@@ -1,4 +1,4 @@
-"""Defaults that work (issue 19, item 2): ``calib fieldcal FILE`` without settings chooses the static-interval
+"""Defaults that work: ``calib fieldcal FILE`` without settings chooses the static-interval
 detection itself (calib.fieldcal.default_detection) and either matches the tuned settings or exits 3 naming the
 settings key to change.
 

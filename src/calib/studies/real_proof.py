@@ -49,7 +49,7 @@ OUT_OF_LIBRARY = ("bias_step", "bias_ramp", "periodic_bias")
 MULTIPLES = (2.0, 3.0, 4.0, 5.5, 7.5, 10.0, 14.0, 20.0)
 #: sizes tried for an out-of-library effect, in standard errors of a static segment's mean
 MULTIPLES_OUT = (5.0, 10.0, 20.0, 40.0, 80.0, 160.0, 320.0)
-#: the consequences a diagnosis must never accept as an explanation (issue 20)
+#: the consequences a diagnosis must never accept as an explanation
 MAX_ABS_DELTA_G = 0.05          # m/s^2: more than geodesy allows for a surveyed site
 MIN_CHI2_OVER_DOF = 0.01        # a chi-square collapsing toward 0 is a degenerate fit
 
@@ -376,7 +376,7 @@ def _segment_mean_se(base: ProofBase) -> list[float]:
 
 
 def acceptance(res: dict) -> dict:
-    """The acceptance of issue 20 on one recording."""
+    """The acceptance criteria of a real-recording proof base on one recording."""
     lib = res["in_library"]
 
     def consistent(r):   # the 99 % Clopper-Pearson interval of the coverage holds 0.95 (or it is above)
@@ -425,7 +425,7 @@ def _one_recording(args):
     return out
 
 
-#: poses a recording needs to serve as a proof base (issue 20: "each shared real recording with >= 12 static poses")
+#: poses a recording needs to serve as a proof base (each shared real recording with >= 12 static poses)
 MIN_POSES = 12
 
 
