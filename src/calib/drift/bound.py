@@ -1,0 +1,278 @@
+"""Cramér–Rao bound of the gyro drift estimated from the navigation errors of a stationary INS (He 2019).
+
+The estimators of :mod:`calib.drift.psobe` (PSOBE, linear least squares, Kalman filter) all see the same data:
+the east and north velocity errors and the latitude and longitude errors of a pure-inertial navigation of a
+stationary unit, at the output instants ``t_k = k dt_out`` (k = 1..N) of the estimation window. This module
+computes how well *any* unbiased estimator can determine the drift from those data, from the generative model
+alone; it runs no estimator and no filter.
+
+Model (the linear stationary error model of :mod:`calib.nav.errormodel`, vertical channel removed)::
+
+    y = J theta + n,    n ~ N(0, Sigma)
+
+* ``y`` (4N): [vE, vN, L, lambda] errors [m/s, m/s, rad, rad] stacked over the N output instants.
+* ``theta`` (5): the constant gyro drift on the three body axes [rad/s] and the horizontal accelerometer bias in
+  the navigation frame (nabla_E, nabla_N) [m/s^2]. The accelerometer bias enters the model only through its
+  horizontal components (C_b^n nabla)_E,N, so these two, not the three body-frame biases the Kalman filter
+  carries, are the parameters the data can determine: the third (vertical) component drives only the removed
+  vertical channel. The drift bound does not depend on how the nuisance parameters are written.
+* ``J`` (4N x 5): column j is the response of the observed errors to a unit step of theta_j, from the
+  state-transition expm(A t) of the augmented model (Earth rate at the site's latitude, Schuler and Foucault
+  dynamics), including the initial errors the initial condition ties to theta (levelling, gyrocompassing).
+* ``Sigma`` (4N x 4N): the covariance of the observed errors caused by the sensor noise the simulator draws:
+  white gyro rate noise (angle random walk, PSD ``q_gyro`` [rad^2/s] per axis) and white accelerometer noise
+  (velocity random walk, PSD ``q_accel`` [m^2/s^3] per axis) propagated through the same model, plus an
+  optional white measurement noise on each observed channel. The physical static session of
+  :func:`calib.sim.simulator.simulate_static_session` draws no bias instability, so there is none here.
+
+The noise is Gaussian and its covariance does not depend on theta, so the Fisher information is
+``F = J^T Sigma^-1 J`` and the bound is ``CRB = F^-1``. Sigma is never formed and inverted: the noise is written
+as ``n = K w`` with ``w`` standard normal (the discretised process noise of each output interval, exact by Van
+Loan's integral, and the measurement noise), the rows of K are scaled to unit variance, and one QR decomposition
+``K^T = Q R`` gives the Cholesky factor of the scaled Sigma (``Sigma_s = R^T R``); ``F`` is then the Gram
+matrix of ``R^-T J`` (a triangular solve). Dense sampling makes Sigma ill conditioned (positions are integrals
+of velocities); its condition number is reported with the bound.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from calib.core import earth
+from calib.core.earth import STANDARD_GRAVITY
+from calib.nav import errormodel
+from calib.sim import simulator
+
+PARAMETERS = ("eps_x", "eps_y", "eps_z", "nabla_E", "nabla_N")
+UNITS = ("rad s-1", "rad s-1", "rad s-1", "m s-2", "m s-2")
+OBSERVED = ("vE_err", "vN_err", "lat_err", "lon_err")
+_OBS_STATE = (3, 4, 5, 6)  # indices of the observed channels in the error state of calib.nav.errormodel
+CONDITIONS = ("true_attitude", "leveled", "self_aligned")
+#: a parameter combination whose effect on the noise-free data cancels to below this share of the parameters' own
+#: effects is not in the data (the model's exact cancellations leave ~1e-10)
+NULL_TOL = 1e-7
+
+
+@dataclass
+class DriftBound:
+    """The Cramér–Rao bound of :data:`PARAMETERS` and how it was obtained."""
+
+    names: tuple
+    units: tuple
+    sigma: np.ndarray  # (p,) 1-sigma bound; inf where the data do not determine the parameter
+    covariance: np.ndarray  # (p, p) F^+ (the bound on the determined parameters)
+    fisher: np.ndarray  # (p, p)
+    identifiable: np.ndarray  # (p,) bool
+    n_observations: int  # 4 N
+    cond_sigma: float  # condition number of the observation covariance, channels scaled to unit variance
+    cond_fisher: float  # condition number of the Fisher matrix scaled to unit diagonal (seen combinations)
+    null: np.ndarray  # (p, k) parameter combinations [parameter units] the data do not see
+
+    def sigma_deg_h(self):
+        """The drift part of :attr:`sigma` in deg/h."""
+        return self.sigma[:3] / earth.DEG_PER_H
+
+
+def observation_times(window_h: float, dt_out: float) -> np.ndarray:
+    """The estimators' output instants [s]: k dt_out, k = 1..N, N = round(window / dt_out)."""
+    n = int(round(window_h * 3600.0 / dt_out))
+    if n < 1:
+        raise ValueError(f"drift window {window_h} h is shorter than one output interval of {dt_out} s")
+    return np.arange(1, n + 1) * float(dt_out)
+
+
+def noise_psd(session: dict, sample_rate_hz: float):
+    """White-noise PSDs of the simulator's physical static session: (gyro [rad^2/s], accel [m^2/s^3]) per axis.
+
+    Gyro ``model: arw``: per-sample angle sigma ARW sqrt(dt), PSD ARW^2 (ARW in rad/sqrt(s)); ``model: white``:
+    per-sample rate sigma ``white_deg_h``, PSD white^2 dt. Accelerometer ``accel_vrw_ug_rthz``: PSD
+    (VRW 1e-6 g0)^2. Missing keys take the simulator's defaults.
+    """
+    gn = {**simulator.STATIC_PHYSICAL_DEFAULTS["gyro_noise"], **(session.get("gyro_noise") or {})}
+    dt = 1.0 / float(sample_rate_hz)
+    if gn["model"] == "arw":
+        q_g = (float(gn["arw_deg_rth"]) * earth.DEG / 60.0) ** 2
+    elif gn["model"] == "white":
+        q_g = (float(gn["white_deg_h"]) * earth.DEG_PER_H) ** 2 * dt
+    else:
+        raise ValueError(f"navigation_session.gyro_noise.model = {gn['model']!r}: expected arw or white")
+    vrw = float(session.get("accel_vrw_ug_rthz", simulator.STATIC_PHYSICAL_DEFAULTS["accel_vrw_ug_rthz"]))
+    return q_g, (vrw * 1e-6 * STANDARD_GRAVITY) ** 2
+
+
+def initial_state_map(condition: str, lat: float, C_bn, h: float = 0.0) -> np.ndarray:
+    """x(0) = L theta (7 x 5) for the initial condition of the navigation.
+
+    ``true_attitude``: zero. ``leveled``: the accelerometers level the platform so that the horizontal biases
+    are cancelled at the start: phi_E = -nabla_N / g, phi_N = nabla_E / g. ``self_aligned``: levelling and
+    gyrocompassing (the heading error that holds phi_E constant): phi_U = (W sin L phi_N - eps_E) / (W cos L),
+    eps_E = (C_b^n eps)_E.
+    """
+    if condition not in CONDITIONS:
+        raise ValueError(f"drift.initial_condition = {condition!r}: expected one of {', '.join(CONDITIONS)}")
+    C = np.asarray(C_bn, float)
+    g = float(earth.normal_gravity(lat, h))
+    L = np.zeros((errormodel.NX, len(PARAMETERS)))
+    if condition == "true_attitude":
+        return L
+    L[0, 4] = -1.0 / g
+    L[1, 3] = 1.0 / g
+    if condition == "self_aligned":
+        wN, wU = earth.OMEGA_IE * math.cos(lat), earth.OMEGA_IE * math.sin(lat)
+        L[2, :] = wU * L[1, :] / wN
+        L[2, 0:3] -= C[0, :] / wN
+    return L
+
+
+def sensitivity_matrix(t, lat, C_bn, h=0.0, condition="true_attitude") -> np.ndarray:
+    """J (4N x 5): the observed errors [vE, vN, L, lambda] at the times ``t`` per unit of each parameter.
+
+    Rows are ordered time-major (the four channels of t_1, then of t_2, ...).
+    """
+    C = np.asarray(C_bn, float)
+    nx, p = errormodel.NX, len(PARAMETERS)
+    A = np.zeros((nx + p, nx + p))
+    A[:nx, :nx] = errormodel.f_matrix(lat, h)
+    A[0:3, nx:nx + 3] = -C  # phi' = ... - C_b^n eps
+    A[3, nx + 3] = A[4, nx + 4] = 1.0  # dv' = ... + (nabla_E, nabla_N)
+    Z0 = np.zeros((nx + p, p))
+    Z0[:nx] = initial_state_map(condition, lat, C, h)
+    Z0[nx:] = np.eye(p)
+    X = errormodel.transition(np.asarray(t, float), A, Z0)  # (N, nx + p, p)
+    return X[:, list(_OBS_STATE), :].reshape(-1, p)
+
+
+def process_noise(F, Qc, dt):
+    """Phi = expm(F dt) and the exact discrete process-noise covariance int_0^dt expm(F s) Qc expm(F s)^T ds
+    (Van Loan 1978)."""
+    n = F.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -F
+    M[:n, n:] = Qc
+    M[n:, n:] = F.T
+    E = scipy.linalg.expm(M * dt)
+    Phi = E[n:, n:].T
+    Qd = Phi @ E[:n, n:]
+    return Phi, 0.5 * (Qd + Qd.T)
+
+
+def noise_factor(t, lat, h=0.0, q_gyro=0.0, q_accel=0.0, meas_sigma=None) -> np.ndarray:
+    """K with Sigma = K K^T: the observed errors caused by the sensor noise, n = K w, w standard normal.
+
+    ``t`` a uniform grid k dt, k = 1..N (the process noise of each interval [t_{k-1}, t_k] is one block of w).
+    ``meas_sigma`` (4,) optional white measurement noise per channel [m/s, m/s, rad, rad].
+    The gyro noise enters phi' through -C_b^n w_g; C_b^n is orthonormal, so its covariance is q_gyro I whatever
+    the attitude. The accelerometer noise enters the horizontal velocity errors (q_accel I_2).
+    """
+    t = np.asarray(t, float)
+    dt = t[0]
+    if t.ndim != 1 or dt <= 0 or np.max(np.abs(np.diff(t) - dt), initial=0.0) > 1e-9 * dt:
+        raise ValueError("observation times must be the uniform grid k dt, k = 1..N")
+    nx, N = errormodel.NX, t.size
+    F = errormodel.f_matrix(lat, h)
+    Qc = np.zeros((nx, nx))
+    Qc[0:3, 0:3] = q_gyro * np.eye(3)
+    Qc[3:5, 3:5] = q_accel * np.eye(2)
+    Phi, Qd = process_noise(F, Qc, dt)
+    w, V = np.linalg.eigh(Qd)
+    Lq = V * np.sqrt(np.clip(w, 0.0, None))  # Qd = Lq Lq^T
+    H = np.zeros((4, nx))
+    H[range(4), _OBS_STATE] = 1.0
+    # block (k, m) = H Phi^(k-m) Lq for m <= k (the noise of interval m, propagated to t_k)
+    blocks = np.empty((N, 4, nx))
+    P = np.eye(nx)
+    for j in range(N):
+        blocks[j] = H @ P @ Lq
+        P = Phi @ P
+    K = np.zeros((4 * N, nx * N))
+    for k in range(N):
+        K[4 * k:4 * k + 4, :nx * (k + 1)] = blocks[k::-1].transpose(1, 0, 2).reshape(4, -1)
+    if meas_sigma is not None:
+        K = np.hstack([K, np.diag(np.tile(np.asarray(meas_sigma, float), N))])
+    return K
+
+
+def fisher_information(J, K):
+    """F = J^T Sigma^-1 J with Sigma = K K^T, by a QR decomposition of the row-scaled K^T (no inverse of Sigma).
+
+    Returns (F, condition number of the unit-diagonal Sigma). Raises if Sigma is singular to working precision.
+    """
+    J = np.asarray(J, float)
+    K = np.asarray(K, float)
+    s = np.linalg.norm(K, axis=1)  # sqrt(diag Sigma)
+    if np.any(s == 0):
+        raise ValueError(f"{int(np.sum(s == 0))} observations carry no noise: the Fisher information is unbounded "
+                         "(give the channels a measurement noise)")
+    R = np.linalg.qr((K / s[:, None]).T, mode="r")  # Sigma_s = R^T R
+    d = np.abs(np.diag(R))
+    if d.min() <= 1e-15 * d.max():
+        raise ValueError("the observation covariance is singular to working precision: observe less densely")
+    W = scipy.linalg.solve_triangular(R, J / s[:, None], trans="T")  # R^-T J_s
+    sv = np.linalg.svd(R, compute_uv=False)
+    return W.T @ W, float((sv[0] / sv[-1]) ** 2)
+
+
+def null_directions(J, scale, tol=NULL_TOL) -> np.ndarray:
+    """Parameter combinations the noise-free observations do not see: an orthonormal basis (p x k) of the null
+    space of ``J diag(1/scale)``, in units of ``scale`` (k = 0: every parameter enters the data).
+
+    ``scale`` is each parameter's own effect (the norm of its column without the initial errors the initial
+    condition ties to it): a combination whose effect cancels to below ``tol`` of that is not in the data (the
+    levelled tilt cancels the horizontal accelerometer bias, the gyrocompassed heading the east drift).
+    """
+    Js = np.asarray(J, float) / np.asarray(scale, float)
+    _, sv, Vt = np.linalg.svd(Js, full_matrices=True)
+    sv = np.concatenate([sv, np.zeros(Js.shape[1] - sv.size)])
+    return Vt[sv < tol * sv.max()].T
+
+
+def bound_from_fisher(F, scale=None, null=None):
+    """(covariance, sigma, identifiable, cond) from a Fisher matrix, saying which parameters it determines.
+
+    ``null`` (p x k, in units of ``scale``) the combinations the data do not see (:func:`null_directions`). A
+    parameter is determined when no such combination moves it; the bound of the determined ones is the inverse
+    of the information restricted to the seen combinations (a Cholesky solve), the others get sigma = inf.
+    ``cond`` is the condition number of that restricted information scaled to unit diagonal.
+    """
+    F = 0.5 * (np.asarray(F, float) + np.asarray(F, float).T)
+    p = F.shape[0]
+    s = np.ones(p) if scale is None else np.asarray(scale, float)
+    Fs = F / np.outer(s, s)  # information on theta * scale
+    if null is None or null.shape[1] == 0:
+        Q = np.eye(p)
+        ident = np.ones(p, bool)
+    else:
+        Q = scipy.linalg.null_space(null.T)  # orthonormal basis of the seen combinations
+        ident = np.linalg.norm(null, axis=1) < 1e-6
+    Fr = Q.T @ Fs @ Q
+    d = np.sqrt(np.diag(Fr))
+    Fn = Fr / np.outer(d, d)
+    ev = np.linalg.eigvalsh(Fn)
+    if ev[0] <= 1e-14 * ev[-1]:
+        raise ValueError("the Fisher information is singular beyond the structural null directions")
+    cov_r = scipy.linalg.cho_solve(scipy.linalg.cho_factor(Fn), np.eye(Fn.shape[0])) / np.outer(d, d)
+    cov = (Q @ cov_r @ Q.T) / np.outer(s, s)
+    cov[~ident, :] = np.nan
+    cov[:, ~ident] = np.nan
+    sigma = np.where(ident, np.sqrt(np.abs(np.diag(np.nan_to_num(cov)))), np.inf)
+    return cov, sigma, ident, float(ev[-1] / ev[0])
+
+
+def drift_bound(window_h, dt_out, lat, C_bn, h=0.0, q_gyro=0.0, q_accel=0.0, condition="true_attitude",
+                meas_sigma=None, accel_bias_known=False) -> DriftBound:
+    """The Cramér–Rao bound of the drift (and the horizontal accelerometer bias) over ``window_h`` hours observed
+    every ``dt_out`` s, for white gyro and accelerometer noise of PSDs ``q_gyro`` [rad^2/s], ``q_accel``
+    [m^2/s^3]. ``accel_bias_known``: the bound when the accelerometer bias is given (drift-only estimators:
+    the model they fit), else the bias is a nuisance parameter estimated with the drift."""
+    t = observation_times(window_h, dt_out)
+    p = 3 if accel_bias_known else len(PARAMETERS)
+    J = sensitivity_matrix(t, lat, C_bn, h, condition)[:, :p]
+    scale = np.linalg.norm(sensitivity_matrix(t, lat, C_bn, h, "true_attitude")[:, :p], axis=0)
+    K = noise_factor(t, lat, h, q_gyro, q_accel, meas_sigma)
+    F, cond_s = fisher_information(J, K)
+    null = null_directions(J, scale)
+    cov, sigma, ident, cond_f = bound_from_fisher(F, scale, null)
+    return DriftBound(PARAMETERS[:p], UNITS[:p], sigma, cov, F, ident, J.shape[0], cond_s, cond_f, null / scale[:, None])
