@@ -3,7 +3,8 @@
 
     python3 run.py study   # create .venv, install, run the full default study (config/config.yaml)
     python3 run.py test    # create/reuse .venv, install, run pytest (one worker per core) with the .test workflow
-                           # beside it, the import-layer contract, snakemake --lint and the CF check of the .test products
+                           # beside it, the import-layer contract, snakemake --lint, the CF check of the .test products
+                           # and the documentation built with warnings as errors (mkdocs build --strict)
 
 Needs only Python >= 3.11 and pip. Extra arguments after the verb go to snakemake (study) or pytest (test).
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import venv
 from pathlib import Path
 
@@ -111,7 +113,7 @@ def main(argv):
         os.environ.setdefault("PIP_COMPILE", "0")
         os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
         env = setup()
-        # beside the tests: the small workflow, then its lint and the CF check of its products (_chain below)
+        # beside the tests: the small workflow, its lint, the CF check of its products, the docs (_chain below)
         chain = Beside("the .test workflow, its lint and the CF check of its products",
                        ROOT / ".test" / "results" / "logs" / "test_chain.log", sys.executable, __file__, "_chain",
                        env=env)
@@ -131,6 +133,9 @@ def main(argv):
         ncs = sorted(p for p in res.rglob("*.nc") if p.parent.name != "runs") + [res / "calibration" / "runs" /
                                                                                 "accel_ide.nc"]
         sh(PY, "tools/cf_check.py", *map(str, ncs), env=env)
+        # the documentation (mkdocs.yml) with warnings as errors, API reference included; the site is thrown away
+        with tempfile.TemporaryDirectory(prefix="calib-site-") as site:
+            sh(BIN / "mkdocs", "build", "--strict", "--quiet", "--site-dir", site, env=env)
     elif verb == "setup":
         setup()
     else:
