@@ -41,7 +41,7 @@ def test_contract_is_documented_in_help_and_readme(capsys):
     epilog = help_text[help_text.index("exit codes:"):]
     assert {int(m) for m in re.findall(r"^\s+(\d+)\s", epilog, re.M)} == CONTRACT
     readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("### Exit codes"):]
+    section = readme[readme.index("## Exit codes"):]
     section = section[:section.index("\n## ")]
     rows = re.findall(r"^\| ([\d /]+) \|", section, re.M)
     assert {int(c) for r in rows for c in r.split("/")} == CONTRACT
