@@ -140,46 +140,34 @@ def bench_session(name, seeds, noise_record, workdir):
 
 
 def bench_cli(recording, noise_record, out, reps=3):
-    """Wall and CPU times of ``python -m calib.cli diagnose`` (a fresh process each: start-up, reading and checking
+    """Wall and CPU times of ``python -m calib.cli diagnose`` (a new process each: start-up, reading and checking
     the files, the whole diagnosis with its library, and the figures), with and without figures and with and
     without the noise record; the runs of one repetition are interleaved, so that a change of the machine's load
-    falls on every row alike. The CPU time (user + system of the command and of its helper process, which checks
-    the inputs and draws the figures beside it: calib.core.helper) is the steadier number on a shared machine."""
+    falls on every row alike. The CPU time (user + system) is the steadier number on a shared machine."""
     (out / "nofig.json").write_text('{"figures": false}')
-    variants = [(["--noise-record", str(noise_record)], "default (figures), noise record", "--noise-record NR"),
+    variants = [([], "default (figures), no noise record", ""),
+                (["--settings", str(out / "nofig.json")], "figures off, no noise record", "--settings nofig.json"),
+                (["--noise-record", str(noise_record)], "default (figures), noise record", "--noise-record NR"),
                 (["--noise-record", str(noise_record), "--settings", str(out / "nofig.json")],
-                 "figures off, noise record", "--noise-record NR --settings nofig.json"),
-                ([], "default (figures), no noise record", ""),
-                (["--settings", str(out / "nofig.json")], "figures off, no noise record", "--settings nofig.json")]
-    runtime = Path(tempfile.mkdtemp(prefix="bs"))   # a private socket folder (short: a socket path <= 107 bytes)
-    cold_env = {**os.environ, "CALIB_SERVER": "off"}
-    warm_env = {**os.environ, "CALIB_SERVER": "on", "XDG_RUNTIME_DIR": str(runtime)}
-    modes = [("cold", cold_env, "CALIB_SERVER=off "), ("served", warm_env, "")]
+                 "figures off, noise record", "--noise-record NR --settings nofig.json")]
     base = [PY, "-m", "calib.cli", "diagnose", str(recording), "--out", str(out / "diag"), "--force"]
-    try:
-        for extra, _, _ in variants:   # a cold run starts the server; a served run is checked to be served
-            subprocess.run(base + extra, cwd=ROOT, env=warm_env, capture_output=True)
-        _wait_served(base, warm_env, runtime)
-        walls = {(m, label): [] for m, _, _ in modes for _, label, _ in variants}
-        cpus = {k: [] for k in walls}
-        for _ in range(reps):
-            for extra, label, _ in variants:
-                for m, env, _ in modes:
-                    shutil.rmtree(out / "diag", ignore_errors=True)
-                    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-                    t0 = time.perf_counter()
-                    r = subprocess.run(base + extra, cwd=ROOT, capture_output=True, text=True, env=env)
-                    walls[m, label].append(time.perf_counter() - t0)
-                    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-                    cpus[m, label].append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
-                    if r.returncode not in (0, 1, 3):
-                        raise RuntimeError(r.stderr)
-    finally:
-        subprocess.run([PY, "-m", "calib.cli", "server", "stop"], cwd=ROOT, env=warm_env, capture_output=True)
-        shutil.rmtree(runtime, ignore_errors=True)
-    rows = [(f"{m}: {label}", pre + " ".join(["calib diagnose FILE --out DIR --force", opts]).strip(),
-             walls[m, label], cpus[m, label] if m == "cold" else None)
-            for _, label, opts in variants for m, _, pre in modes]
+    for extra, _, _ in variants:   # not timed: byte code and numba's cache written, the files in the page cache
+        subprocess.run(base + extra, cwd=ROOT, capture_output=True)
+    walls = {label: [] for _, label, _ in variants}
+    cpus = {label: [] for _, label, _ in variants}
+    for _ in range(reps):
+        for extra, label, _ in variants:
+            shutil.rmtree(out / "diag", ignore_errors=True)
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            r = subprocess.run(base + extra, cwd=ROOT, capture_output=True, text=True)
+            walls[label].append(time.perf_counter() - t0)
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpus[label].append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
+            if r.returncode not in (0, 1, 3):
+                raise RuntimeError(r.stderr)
+    rows = [(label, " ".join(["calib diagnose FILE --out DIR --force", opts]).strip(), walls[label], cpus[label])
+            for _, label, opts in variants]
     # start-up alone: what `calib diagnose` imports before it reads the recording (the parser registers the
     # sub-commands of calib.cli.formats)
     walls, cpus = [], []
@@ -192,20 +180,6 @@ def bench_cli(recording, noise_record, out, reps=3):
         cpus.append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
     rows.append(("start-up only", 'python -c "import calib.cli, calib.cli.formats, calib.diagnosis"', walls, cpus))
     return rows
-
-
-def _wait_served(base, env, runtime, timeout=120.0):
-    """Wait for the server the cold runs started, and check that a command is served (not run cold again)."""
-    client = ("import sys\nfrom calib.cli import server\n"
-              "sys.exit(0 if server.run_served(sys.argv[1:]) is not None else 99)")
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
-        if list(runtime.glob("calib-*/srv-*.sock")):
-            r = subprocess.run([PY, "-c", client] + base[3:], cwd=ROOT, env=env, capture_output=True)
-            if r.returncode != 99:
-                return
-        time.sleep(0.2)
-    raise RuntimeError("no server of calib diagnose answered (calib.cli.server)")
 
 
 def bytecode_state() -> str:
@@ -288,10 +262,8 @@ def _print_cli(cli, name):
     print("| run | command | wall min [s] | wall median [s] | CPU median [s] |")
     print("|---|---|---|---|---|")
     for label, cmd, walls, cpus in cli:
-        cpu = f"{statistics.median(cpus):.2f}" if cpus is not None else "(in the server's run)"
-        print(f"| {label} | `{cmd}` | {min(walls):.2f} | {statistics.median(walls):.2f} | {cpu} |")
-    print("\ncold: a new process (start-up, imports, numba's cache, the helper's matplotlib); served: the same command "
-          "with a warm server of the same code running (calib.cli.server), which the cold runs started.")
+        print(f"| {label} | `{cmd}` | {min(walls):.2f} | {statistics.median(walls):.2f} | "
+              f"{statistics.median(cpus):.2f} |")
 
 
 if __name__ == "__main__":

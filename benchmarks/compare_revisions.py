@@ -11,10 +11,10 @@ differences.
 Each revision is checked out once into a temporary ``git worktree`` (removed at the end) and run with this
 environment's interpreter and packages, its own ``src`` first on ``PYTHONPATH`` (``python -m calib.cli ARGS``), its
 byte code compiled first and one run of each not counted (so neither side pays for compiling calib's modules or
-numba's kernels, cached per worktree). Every run gets ``CALIB_SERVER=off``
-(a cold process each; a served run is not timed here), and its own output folder or file when ``{rev}`` appears in an
-argument (``--out /tmp/d_{rev}``). Wall time from start to reaping, CPU time the user + system time of the command and
-of its helper processes (the children it waited for). A run that exits with a code outside 0, 1 and 3 stops the
+numba's kernels, cached per worktree). Every run is a new process (with ``CALIB_SERVER=off`` for a revision whose
+``calib diagnose`` would start a background server), and gets its own output folder or file when ``{rev}`` appears in
+an argument (``--out /tmp/d_{rev}``). Wall time from start to reaping, CPU time the user + system time of the command
+and of any child process it waited for. A run that exits with a code outside 0, 1 and 3 stops the
 comparison (its error is printed).
 """
 from __future__ import annotations

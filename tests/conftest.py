@@ -7,10 +7,6 @@ import pytest
 
 from calib.sim import simulator
 
-#: no warm server of ``calib diagnose`` (calib.cli.server) outlives a test or serves one; tests/cli/test_server.py
-#: turns it on for its own commands, in its own socket folder
-os.environ["CALIB_SERVER"] = "off"
-
 #: the test files that take longest (CPU s on one core, or wall s where they wait on subprocesses), longest
 #: first. With several pytest-xdist workers (``python3 run.py test``: ``--dist loadfile``) the files are handed out
 #: in this order, so that no long file starts last while the other cores run out of work. Order only: a file not
@@ -18,11 +14,9 @@ os.environ["CALIB_SERVER"] = "off"
 LONGEST_FIRST = [   # measured 2026-11-27 (pytest --junitxml, summed per file)
     "tests/diagnosis/test_diagnosis_proof.py",
     "tests/formats/test_noise.py",
-    "tests/cli/test_helper.py",
     "tests/workflow/test_cluster.py",
     "tests/fieldcal/test_units_check.py",
     "tests/studies/test_sweeps.py",
-    "tests/cli/test_server.py",          # ~17 s (2026-11-27, second session: a cold run, the server's warm-up)
     "tests/cli/test_exit_codes.py",
     "tests/diagnosis/test_real_proof.py",
     "tests/fieldcal/test_default_detection.py",

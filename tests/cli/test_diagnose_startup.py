@@ -71,7 +71,7 @@ def test_each_input_is_read_once_with_the_same_report(tmp_path, capsys, monkeypa
     rec = simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "clean.nc")
     settings = tmp_path / "s.json"
     settings.write_text(json.dumps({"figures": False}))
-    log = tmp_path / "reads.txt"   # a file: the checks may run in the command's helper process
+    log = tmp_path / "reads.txt"
     body = recording._validate_body
 
     def counting(path, h, *rest):

@@ -522,10 +522,8 @@ def test_a_file_name_that_is_not_utf8_is_refused_by_name_with_the_fix(tmp_path, 
 def test_units_and_calibration_that_do_not_pair_are_refused_before_any_sample_is_read(tmp_path, capsys, monkeypatch,
                                                                                       with_calibration):
     """A recording in physical units given a count calibration, or raw counts given none: refused (exit 2) with the
-    command's own fix at once, without waiting for the check of every sample (12-21 s on a 240 h recording before).
-    The command's helper starts that check at the command's start, beside the imports; here it would take 60 s (and
-    the command's own process reads no sample): the refusal comes within seconds and the check is ended with it."""
-    import time
+    command's own fix at once, before any sample is read (the check of every sample takes 12-21 s on a 240 h
+    recording): here a read of the samples fails the test."""
 
     import xarray as xr
 
@@ -544,19 +542,13 @@ def test_units_and_calibration_that_do_not_pair_are_refused_before_any_sample_is
         extra, fix = [], "calib navigate --calibration default_calibration.nc"
     capsys.readouterr()
 
-    here = os.getpid()
-
     def no_samples(*a, **k):
-        if os.getpid() == here:
-            raise AssertionError("the command read samples before the refusal")
-        time.sleep(60)   # the helper's check of every sample: far longer than the refusal may take
+        raise AssertionError("the command read samples before the refusal")
 
     monkeypatch.setattr(recording, "_validate_body", no_samples)
     monkeypatch.setattr(recording, "iter_raw_chunks", no_samples)
-    t0 = time.monotonic()
     code, err = run(capsys, "navigate", rec, *extra, "--out", tmp_path / "out.nc")
     assert code == 2 and fix in err and "calibration" in err, err
-    assert time.monotonic() - t0 < 30, "the refusal waited for the check of the samples"
     assert not (tmp_path / "out.nc").exists()
 
 
@@ -596,15 +588,11 @@ def test_the_samples_are_read_once_for_the_format_and_the_plausibility_checks(tm
     assert len(reads) == 1
 
 
-@pytest.mark.parametrize("helper_on", ["on", "off"])
-def test_navigate_checks_every_sample_beside_the_navigation_and_its_refusal_wins(tmp_path, capsys, monkeypatch,
-                                                                                 helper_on):
-    """`calib navigate` checks every sample in its helper process while it navigates (or first, without a helper):
-    a clean recording is navigated with its check done in the helper; a masked sample is refused by its index (exit
-    2) although the navigation ran, and nothing replaces the earlier output."""
-    import os
-
-    from calib.core import helper
+def test_navigate_checks_every_sample_before_the_navigation(tmp_path, capsys, monkeypatch):
+    """`calib navigate` checks every sample before it navigates: a clean recording is navigated after one check; a
+    masked sample is refused by its index (exit 2) before any navigation, and nothing replaces the earlier
+    output."""
+    from calib.studies import navigation as navigation_study
 
     clean = tmp_path / "clean.nc"
     assert cli.main(["simulate", "navigation", str(clean), "--config", str(ROOT / ".test" / "config.yaml"),
@@ -613,39 +601,29 @@ def test_navigate_checks_every_sample_beside_the_navigation_and_its_refusal_wins
     ds["accel"].values[77, 1] = np.nan
     ds["accel"].encoding["_FillValue"] = -9999.0
     masked = write_netcdf(ds, tmp_path / "masked.nc")
-    monkeypatch.setenv(helper.ENV, helper_on)
-    checks = tmp_path / "checks.txt"
-    check = cli._input_check
-
-    def noted(*args):
-        with open(checks, "a") as fh:
-            fh.write(f"{os.getpid()}\n")
-        return check(*args)
-
-    monkeypatch.setattr(cli, "_input_check", noted)
+    checks = count_calls(monkeypatch, "_validate_body", recording)
+    navigations = count_calls(monkeypatch, "navigate_file", navigation_study)
     capsys.readouterr()
     code, err = run(capsys, "navigate", clean, "--out", tmp_path / "nav.nc", "--output-interval", "1")
     assert code == 0 and (tmp_path / "nav.nc").exists(), err
-    pids = checks.read_text().split() if checks.exists() else []
-    assert (pids != [] and str(os.getpid()) not in pids) if helper_on == "on" else pids == [], pids
+    assert (len(checks), len(navigations)) == (1, 1)
     out = tmp_path / "earlier.nc"
     out.write_bytes(b"earlier output")
     code, err = run(capsys, "navigate", masked, "--out", out, "--output-interval", "1")
     assert code == 2 and "masked sample (_FillValue -9999) at sample 77" in err, err
+    assert len(navigations) == 1   # refused before the navigation
     assert out.read_bytes() == b"earlier output" and leftovers(tmp_path) == []
 
 
 def test_navigate_reads_the_recording_s_header_once_beside_its_check(tmp_path, capsys, monkeypatch):
     """`calib navigate` reads the header (for a recording with a time coordinate: the whole time array, differenced
     and fitted) once for the navigation and once for the sample check: the early units check, the progress bar and
-    the navigation share the first read. Counted with the check in the command's own process."""
-    from calib.core import helper
+    the navigation share the first read."""
     from calib.studies import navigation as navigation_study
 
     rec = tmp_path / "nav.nc"
     assert cli.main(["simulate", "navigation", str(rec), "--config", str(ROOT / ".test" / "config.yaml"),
                      "--hours", "0.005"]) == 0
-    monkeypatch.setenv(helper.ENV, "off")
     reads = count_calls(monkeypatch, "read_header", recording, navigation_study)
     code, err = run(capsys, "navigate", rec, "--out", tmp_path / "out.nc", "--output-interval", "1")
     assert code == 0 and (tmp_path / "out.nc").exists(), err
@@ -657,14 +635,12 @@ def test_navigate_reads_the_calibration_file_once(tmp_path, capsys, monkeypatch)
     navigation share that read (three opens before). Counted on xarray's opening of that file."""
     import xarray as xr
 
-    from calib.core import helper
     from calib.core.triad import liu2021_model
 
     rec = tmp_path / "static.nc"
     simulator.simulate_static_session({"mode": "counts", "duration_h": 0.002, "site": SITE}, 3, rec)
     cal = tmp_path / "cal.nc"
     xr.Dataset({s: (("parameter",), liu2021_model(s).to_vector()) for s in ("accel", "gyro")}).to_netcdf(cal)
-    monkeypatch.setenv(helper.ENV, "off")
     opens, open_dataset = [], xr.open_dataset
 
     def counted(path, *a, **k):

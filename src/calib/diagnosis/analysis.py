@@ -346,10 +346,8 @@ def confirm_on_measured_noise(prob: Problem, final: Fit):
     return final, dropped
 
 
-def analyse(prob: Problem, on_final=None) -> dict:
-    """Steps 1-5 on a set-up problem; returns the report content (without file paths). ``on_final``: called with
-    ``(base, final)`` as soon as the final model is chosen (the command hands the residual figure to its helper
-    then, while the searches beyond the library run)."""
+def analyse(prob: Problem) -> dict:
+    """Steps 1-5 on a set-up problem; returns the report content (without file paths)."""
     st = prob.settings
     base0 = fit(prob, [])
     final, steps, table = stepwise(prob, base0)
@@ -361,8 +359,6 @@ def analyse(prob: Problem, on_final=None) -> dict:
                 delta_hint=final.delta if "time_offset" in final.terms else None) if final.terms else base
     final = refine_signatures(prob, final)
     final, unconfirmed = confirm_on_measured_noise(prob, final)
-    if on_final is not None:
-        on_final((base, final))
     # report_detail false (the proof's per-seed runs, which score the verdict and the findings only): the angles the
     # aliases of the found terms read, no absorbed fractions, separations or location of the misfit
     detail = st.get("report_detail", True)

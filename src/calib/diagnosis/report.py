@@ -2,10 +2,7 @@
 (standardised residuals before/after, Allan deviation)."""
 from __future__ import annotations
 
-import contextlib
-import copy
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -216,92 +213,12 @@ def _figure_jobs(prob: Problem, fits):
             ("allan_deviation.png", "allan", allan_data(prob))]
 
 
-def start_figures(prob: Problem, out_dir, st, fits=None) -> None:
-    """Hand a figure to the command's helper process (:mod:`calib.core.helper`) as soon as its data are known, so
-    that it is drawn while the rest of the diagnosis runs: the Allan deviation once the noise is fitted (``fits``
-    None: right after the set-up), the residuals once the final model is chosen (``fits`` = (base, final): before the
-    open search, the rival forms and the absent bounds). :func:`write_figures` collects them, and draws one again
-    should its data have changed since (they are compared with a copy taken here). Nothing without a helper, an
-    output folder or figures."""
-    from calib.core import helper
-
-    h = helper.current()
-    if h is None or out_dir is None or not st.get("figures", True):
-        return
-    name, kind, data = (("allan_deviation.png", "allan", allan_data(prob)) if fits is None else
-                        next(j for j in _figure_jobs(prob, fits) if j[1] == "residual"))
-    early = dict(getattr(prob, "early_figures", None) or {})
-    with contextlib.suppress(helper.HelperError):
-        # drawn beside the helper: the residual figure need not wait for the Allan figure still being drawn
-        jid = h.submit([("calib.figures.diagnosis:render", (kind, data))], beside=True)
-        early[name] = (copy.deepcopy(data), jid)
-    prob.early_figures = early
-
-
-def _same_data(a, b) -> bool:
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same_data(a[k], b[k]) for k in a)
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same_data(x, y) for x, y in zip(a, b))
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        a, b = np.asarray(a), np.asarray(b)
-        return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
-    return type(a) is type(b) and a == b
-
-
 def write_figures(prob: Problem, fits, out_dir) -> list:
-    """The report's figures in ``out_dir``; drawn two at a time by the command's helper process when there is one
-    (:mod:`calib.core.helper`; a figure handed over by :func:`start_figures` is already under way), the files
-    written here in the same order either way."""
-    from calib.core import helper
+    """The report's figures in ``out_dir``, in the order of :func:`_figure_jobs`."""
+    from calib.figures import diagnosis as figs, style   # matplotlib with the project's rc settings: only when drawing
 
     out_dir = Path(out_dir)
-    jobs = _figure_jobs(prob, fits)
-    h = helper.current()
-    if h is not None:
-        from calib.figures.output import write_rendered
-
-        early = getattr(prob, "early_figures", None) or {}
-        prob.early_figures = None
-        try:
-            pending = {name: (jid, 0) for name, (data0, jid) in early.items()
-                       if any(n == name and _same_data(d, data0) for n, _, d in jobs)}
-            now = [(name, kind, data) for name, kind, data in jobs if name not in pending]
-            here = {}
-            if now and pending and _plotting_warm():
-                # a warm process (forked from calib.cli.server) draws what is left itself, beside the helper's
-                # figure, instead of queueing it behind that one: the same bytes either way
-                from calib.figures import diagnosis as figs
-
-                here = {name: figs.render(kind, data) for name, kind, data in now}
-                now = []
-            if now:
-                jid = h.submit([("calib.figures.diagnosis:render", (kind, data)) for _, kind, data in now],
-                               beside=True)
-                pending.update({name: (jid, i) for i, (name, _, _) in enumerate(now)})
-            results = {}
-            for name, _, _ in jobs:   # collected in the figures' order (an exception of the first comes first)
-                if name in here:
-                    continue
-                jid = pending[name][0]
-                if jid not in results:
-                    results[jid] = h.result(jid)
-            rendered = [here[name] if name in here else results[pending[name][0]][pending[name][1]]
-                        for name, _, _ in jobs]
-        except helper.HelperError:   # the helper is gone (it writes nothing): drawn here instead
-            rendered = None
-        if rendered is not None:
-            return [str(write_rendered(out_dir / name, data, problems))
-                    for (name, _, _), (data, problems) in zip(jobs, rendered)]
-    from calib.figures import diagnosis as figs, style
-
-    return [str(style.save(figs.FIGURES[kind](data), out_dir / name)) for name, kind, data in jobs]
-
-
-def _plotting_warm() -> bool:
-    """Whether this process has matplotlib loaded and warm (then drawing here costs only the drawing)."""
-    mod = sys.modules.get("calib.figures.diagnosis")
-    return mod is not None and mod.warm()
+    return [str(style.save(figs.FIGURES[kind](data), out_dir / name)) for name, kind, data in _figure_jobs(prob, fits)]
 
 
 def _report_header(path, st):

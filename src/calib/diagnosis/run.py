@@ -13,7 +13,7 @@ from calib.diagnosis.blas import single_thread_blas
 from calib.diagnosis.geometry import DiagnosisInputError
 from calib.diagnosis.norm import setup_norm_problem
 from calib.diagnosis.problem import settings_of
-from calib.diagnosis.report import build_report, inconclusive_report, report_markdown, start_figures
+from calib.diagnosis.report import build_report, inconclusive_report, report_markdown
 from calib.diagnosis.vector import setup_problem
 from calib.io import recording
 from calib.io.atomic import output_set, write_json as write_json_atomic, write_text as write_text_atomic
@@ -60,19 +60,16 @@ def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=N
 def _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from=None):
     prob = None
     try:
-        # with a helper process, the noise figure is drawn while the rest runs: handed over once the noise is fitted
         if "nominal_attitude" in ds or (library_from is not None and library_from.kind == "vector"):
-            prob = setup_problem(ds, st, library_from=library_from, geometry_from=geometry_from,
-                                 on_problem=lambda p: start_figures(p, out_dir, st))
+            prob = setup_problem(ds, st, library_from=library_from, geometry_from=geometry_from)
         else:
             prob = setup_norm_problem(ds, st)
-            start_figures(prob, out_dir, st)
         rank = np.linalg.matrix_rank(prob.whiten(prob.X0))
         if rank < prob.X0.shape[1]:
             raise DiagnosisInputError(f"the base calibration failed: its design has rank {rank} of "
                                       f"{prob.X0.shape[1]} (the positions do not determine every parameter)",
                                       "add static positions that point each axis up and down")
-        res = analyse(prob, on_final=lambda fits: start_figures(prob, out_dir, st, fits))
+        res = analyse(prob)
         prob.last_fits = res["_fits"]
         if not np.isfinite(res["goodness_of_fit"]["before"]["chi2"]):
             raise DiagnosisInputError("the base calibration failed: non-finite chi-square")

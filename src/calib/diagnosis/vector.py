@@ -17,7 +17,7 @@ from calib.diagnosis.library import build_library
 from calib.diagnosis.noise import covariance_blocks, covariance_parts, fit_noise, reml_slow, with_measured_slow
 from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, base_estimates
 
-def setup_problem(ds, settings=None, *, library_from=None, geometry_from=None, on_problem=None) -> Problem:
+def setup_problem(ds, settings=None, *, library_from=None, geometry_from=None) -> Problem:
     """Observations, noise model, covariance, base design and effect library of a recording dataset.
 
     ``library_from``: a previous :class:`Problem` on the same geometry whose library (signatures at its base
@@ -25,8 +25,6 @@ def setup_problem(ds, settings=None, *, library_from=None, geometry_from=None, o
     previous :class:`Problem` on the same geometry (the same segments, attitudes, table angle and temperature;
     other sensor data) whose geometry, covariance parts and base design are reused, the library being built anew
     at this recording's base solution: the same numbers as a set-up from scratch (the proof's power scan).
-    ``on_problem``: called with the :class:`Problem` as soon as its noise fit is known (the command hands the noise
-    figure to its helper then, while the rest of the set-up runs).
     """
     st = {**DEFAULT_SETTINGS, **(settings or {})}
     if library_from is not None:
@@ -54,8 +52,6 @@ def setup_problem(ds, settings=None, *, library_from=None, geometry_from=None, o
     cache = shared.cache if shared is not None else {}
     _, L = covariance_blocks(geom, noise, parts, cache)        # first guess (Allan random walk)
     prob = Problem(geom, y, noise, parts, L, X0, [], readings, settings=st, cache=cache)
-    if on_problem is not None:
-        on_problem(prob)
     # the measured noise of the adequacy tests: the session's Allan deviation, and the slow part of a long static
     # record of the same unit when there is one -- never a level estimated from the window means
     if st.get("noise_record"):

@@ -2,9 +2,7 @@
 before and after the selected terms, and the Allan deviation of the static segments.
 
 The data come from :mod:`calib.diagnosis.report` (``residual_data``, ``allan_data``); here only numpy and
-matplotlib are needed, so the figures can be drawn by the command's helper process (:mod:`calib.core.helper`)
-which never imports the diagnosis. :func:`render` returns what :func:`calib.figures.style.save` would write, as
-bytes, with the inspection's findings; :func:`calib.figures.output.write_rendered` writes it.
+matplotlib are needed (the figures layer sits below the diagnosis).
 """
 from __future__ import annotations
 
@@ -72,33 +70,3 @@ def allan(panels: list):
 
 
 FIGURES = {"residual": residual, "allan": allan}
-
-
-def render(kind: str, data, suffix: str = ".png"):
-    """``(bytes or None, problems)`` of figure ``kind`` drawn from ``data`` (:func:`calib.figures.style.render`)."""
-    return style.render(FIGURES[kind](data), suffix)
-
-
-def warm_up() -> None:
-    """Load what the first figure of a process loads -- fonts, the mathtext parser of the log-axis tick labels,
-    marker paths, the layout machinery -- by rendering a small log-log figure (discarded), so that the real
-    figures cost only their own drawing. Caches only: the same bytes after it. Once per process (a process
-    forked from a warmed one -- :mod:`calib.cli.server` -- is warm already)."""
-    if _WARM:
-        return
-    fig, ax = style.plt.subplots(figsize=(2, 2))
-    ax.loglog([1e-2, 1e2], [1e-3, 1e5], "o-", ms=3, label="x")
-    ax.plot([1e-1], [1e-1], "o", mfc="none", ms=4, label="y")
-    ax.legend()
-    ax.set_xlabel("tau [s]")
-    fig.tight_layout()
-    style.render(fig)
-    _WARM.append(True)
-
-
-def warm() -> bool:
-    """Whether this process has drawn its first figure (:func:`warm_up`): another figure costs only its drawing."""
-    return bool(_WARM)
-
-
-_WARM: list = []

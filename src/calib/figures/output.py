@@ -1,8 +1,8 @@
 """Writing a rendered figure: what :func:`calib.figures.style.save` does after drawing, without matplotlib.
 
-A figure drawn elsewhere (the command's helper process, :mod:`calib.core.helper`) arrives as bytes with the
-findings of :func:`calib.figures.style.inspect`; :func:`write_rendered` treats the findings as ``save`` does
-(:data:`CHECK_ENV`: printed, or in strict mode refused before anything is written) and writes the file atomically.
+A figure rendered to bytes (:func:`calib.figures.style.render`) comes with the findings of
+:func:`calib.figures.style.inspect`; :func:`write_rendered` treats the findings (:data:`CHECK_ENV`: printed, or in
+strict mode refused before anything is written) and writes the file atomically.
 """
 from __future__ import annotations
 

@@ -2,9 +2,8 @@
 
 matplotlib writes creation dates into PDF and SVG and random ids into SVG; they are pinned here:
 ``svg.hashsalt`` fixed, ``metadata={'Date': None}`` for SVG, ``{'CreationDate': None}`` for PDF, and
-``Software`` removed from PNG. Every figure the project writes goes through :func:`save`, which writes to a
-temporary name and renames -- or, drawn in another process, through :func:`render` (the same bytes) and
-:func:`calib.figures.output.write_rendered`.
+``Software`` removed from PNG. Every figure the project writes goes through :func:`save`: :func:`render` to bytes,
+then :func:`calib.figures.output.write_rendered`, which writes to a temporary name and renames.
 """
 from __future__ import annotations
 
@@ -131,7 +130,7 @@ def save(fig, path) -> Path:
     """Save ``fig`` to ``path`` (format from the suffix) deterministically and atomically; closes it.
 
     The figure is first looked at by :func:`inspect` (see :data:`CHECK_ENV`): :func:`render`, then
-    :func:`calib.figures.output.write_rendered` (the one path of every figure, drawn here or in another process)."""
+    :func:`calib.figures.output.write_rendered`."""
     path = Path(path)
     return write_rendered(path, *render(fig, path.suffix))
 

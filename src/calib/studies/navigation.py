@@ -124,20 +124,16 @@ def check_navigation_inputs(recording_path, calibration_nc):
 
 
 def navigate_file(recording_path, calibration_nc, out_nc, nav: dict, prov=None, init="attrs", log=print,
-                  inputs_checked=None, inputs=None):
+                  inputs=None):
     """Navigate one recording (streamed, progress in the log) and write the labelled error dataset.
-    ``inputs_checked()``: called once the navigation is done, before its result is judged or written (``calib
-    navigate`` checks every sample of the recording beside the navigation and collects that check there: a refusal
-    of it raises and nothing is written). ``inputs``: :func:`check_navigation_inputs` of these two files when the
-    caller has it (the header and the calibration are then not read again)."""
+    ``inputs``: :func:`check_navigation_inputs` of these two files when the caller has it (the header and the
+    calibration are then not read again)."""
 
     h, cal = inputs if inputs is not None else check_navigation_inputs(recording_path, calibration_nc)
     bar = Progress(h.n_samples, f"navigating {Path(recording_path).name}")
     ds = navigation.navigate_recording(recording_path, calibration=cal, init=init, nav_rate_hz=nav["nav_rate_hz"],
                                        output_interval_s=nav["output_interval_s"], progress=lambda d, n: bar(d),
                                        header=h)
-    if inputs_checked is not None:
-        inputs_checked()
     # a non-finite solution is refused (exit 3) before it could replace an earlier output
     plausibility.check_finite_result(ds, out_nc, "check the calibration and the recording's units; the navigation "
                                      "rate is navigation.nav_rate_hz (calib navigate --nav-rate)")
