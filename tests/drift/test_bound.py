@@ -149,7 +149,7 @@ def test_kalman_filter_covariance_approaches_the_independent_bound():
     """The Kalman filter of calib.drift.psobe with diffuse priors and a small measurement-noise floor is a
     different computation of the same limit on the drift (true initial attitude): within 1 %."""
     b = bound.drift_bound(3.0, 60.0, LAT, np.eye(3), q_gyro=ARW**2)
-    kf, _ = psobe.noise_limit(3.0, 60.0, LAT, np.eye(3), ARW, "true_attitude")
+    kf, _ = psobe.filter_covariance(3.0, 60.0, LAT, np.eye(3), ARW, "true_attitude")
     assert kf == pytest.approx(b.sigma[:3], rel=0.01)
 
 

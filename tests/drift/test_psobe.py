@@ -39,14 +39,14 @@ def test_pso_flags_a_bound():
     assert r.pinned == [0, 1, 2] and np.allclose(r.best, 0.03)
 
 
-def test_noise_limit_north_axis_equals_arw_over_sqrt_T():
-    """With the true initial attitude, the north gyro's drift is seen directly through phi_N -> vE: its bound is
-    the angle-random-walk limit ARW / sqrt(T) (within 1 %). After self-alignment the east drift is unobservable
-    (bound >= 100 x larger), after levelling it is limited by the accelerometer-bias prior."""
+def test_filter_covariance_north_axis_equals_arw_over_sqrt_T():
+    """With the true initial attitude, the north gyro's drift is seen directly through phi_N -> vE: the Kalman
+    filter's 1-sigma reaches the angle-random-walk limit ARW / sqrt(T) (within 1 %). After self-alignment the east
+    drift is unobservable: the filter's sigma stays near its prior (>= 100 x larger)."""
     arw = 0.001 * math.pi / 180 / 60  # 0.001 deg/sqrt(h) in rad/sqrt(s)
-    s_true, _ = drift.noise_limit(3.0, 60.0, LAT, np.eye(3), arw, "true_attitude")
+    s_true, _ = drift.filter_covariance(3.0, 60.0, LAT, np.eye(3), arw, "true_attitude")
     assert s_true[1] / DEG_PER_H == pytest.approx(0.001 / math.sqrt(3.0), rel=0.01)
-    s_sa, _ = drift.noise_limit(3.0, 60.0, LAT, np.eye(3), arw, "self_aligned")
+    s_sa, _ = drift.filter_covariance(3.0, 60.0, LAT, np.eye(3), arw, "self_aligned")
     assert s_sa[0] > 100 * s_true[0]
 
 

@@ -1,4 +1,4 @@
-"""Rule drift_noise_seeds: the best estimators against the Cramer-Rao bound over many noise seeds."""
+"""Rule drift_noise_seeds: the drift estimators over many noise seeds against the Cramér–Rao bound."""
 import numba
 
 from calib.studies import drift as drift_study

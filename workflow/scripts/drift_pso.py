@@ -1,4 +1,4 @@
-"""Rule drift_pso: He 2019 Table 1, Figures 2-3, the noise limit and the baselines."""
+"""Rule drift_pso: He 2019 Table 1, Figures 2-3, the Cramér–Rao bound and the baselines."""
 import numba
 
 from calib.studies import drift as drift_study

@@ -1,4 +1,7 @@
-"""Gyro-drift estimation from pure-inertial navigation errors (He 2019), with its noise limit and baselines.
+"""Gyro-drift estimation from pure-inertial navigation errors (He 2019) and its baselines (least squares, Kalman filter).
+
+The Cramér–Rao bound of the same problem, from the generative model without running any estimator, is in
+:mod:`calib.drift.bound`.
 
 Scenario (He 2019 §IV.A): a stationary IMU at known position, zero velocity; the first ``window_h`` hours
 of the recording are navigated; a candidate drift triplet ``eps`` [deg/h, body frame] is compensated
@@ -177,7 +180,7 @@ def table1(estimates, reference):
 
 
 # ======================================================================================================
-# The noise limit (Cramer-Rao bound) and the Kalman-filter estimator on the linear error model
+# The Kalman-filter estimator on the linear error model and its covariance
 # ======================================================================================================
 INITIAL_CONDITIONS = ("true_attitude", "leveled", "self_aligned")
 
@@ -237,12 +240,14 @@ def kalman_drift(y, dt_out, lat, C_bn, arw_rad_rts, condition="true_attitude", h
     known-position measurements every ``dt_out`` s; returns the final estimate of the constant errors and
     its covariance.
 
-    y (N, 4): measured [vE, vN, lat, lon] errors [m/s, m/s, rad, rad] at t_k = (k+1) dt_out (``None`` to get
-    only the covariance: then this is the Cramer-Rao bound of the linear-Gaussian problem, since the filter
-    with diffuse priors on the constants is the efficient estimator). Process noise: gyro angle random walk
+    y (N, 4): measured [vE, vN, lat, lon] errors [m/s, m/s, rad, rad] at t_k = (k+1) dt_out (the covariance
+    does not depend on y: zeros give the filter's covariance alone, :func:`filter_covariance`). Process noise:
+    gyro angle random walk
     ``arw_rad_rts`` [rad/sqrt(s)] per body axis (or white rate noise of sigma ``white_rad_s`` per sample of
     ``dt_sample``, PSD white^2 dt_sample). ``sigma_v``, ``sigma_p_rad``: a small measurement noise floor
-    (the limit does not depend on it once it is well below the process-noise effects: see the tests).
+    (the covariance of the drift does not depend on it once it is well below the process-noise effects).
+    The covariance is the filter's own: it comes near the Cramér–Rao bound (:mod:`calib.drift.bound`) only where
+    the data determine every constant; where they do not (after levelling or gyrocompassing) it is the prior.
     """
 
     C = np.asarray(C_bn, float)
@@ -282,10 +287,11 @@ def kalman_drift(y, dt_out, lat, C_bn, arw_rad_rts, condition="true_attitude", h
     return KalmanResult(z[Ptheta_idx].copy(), P[Ptheta_idx, Ptheta_idx].copy(), names)
 
 
-def noise_limit(window_h, dt_out, lat, C_bn, arw_rad_rts, condition="true_attitude", h=0.0, white_rad_s=0.0,
-                dt_sample=0.01, estimate_accel_bias=True):
-    """Cramer-Rao bound [rad/s] (1 sigma) per body axis of the drift, with the accelerometer biases (and,
-    through ``condition``, the initial tilt and heading) as nuisance parameters."""
+def filter_covariance(window_h, dt_out, lat, C_bn, arw_rad_rts, condition="true_attitude", h=0.0, white_rad_s=0.0,
+                      dt_sample=0.01, estimate_accel_bias=True):
+    """The Kalman filter's 1-sigma [rad/s] per body axis of the drift after the window, and its covariance of the
+    constants, with the accelerometer biases (and, through ``condition``, the initial tilt and heading) as
+    nuisance parameters under the filter's priors. Not a bound: see :mod:`calib.drift.bound`."""
     n = int(round(window_h * 3600.0 / dt_out))
     res = kalman_drift(np.zeros((n, 4)), dt_out, lat, C_bn, arw_rad_rts, condition, h, white_rad_s=white_rad_s,
                        dt_sample=dt_sample, estimate_accel_bias=estimate_accel_bias)

@@ -53,8 +53,7 @@ from calib.studies.calibration import truth_vector, method_options
 from calib.core.triad import PARAM_NAMES
 from calib.drift import psobe as drift
 from calib.drift import pso
-from calib.studies.drift import attitude_rad, noise_psd
-from calib.core.earth import DEG_PER_H
+from calib.studies.drift import attitude_rad, drift_crb
 from calib.core import seeds
 
 from calib.studies.sweep_spec import (  # noqa: F401 - the sweep files, re-exported
@@ -188,10 +187,7 @@ def drift_point(recording_path, cfg: dict, log=print):
     J_min = float(cost(eps_min[None, :])[0])  # J of the linearised minimiser, by navigation
     if J.min() < J_min:  # a test did better (the errors are not exactly linear in the drift): use it
         eps_min, J_min = est[int(np.argmin(J))].copy(), float(J.min())
-    arw, white = noise_psd(session)
-    dt_out = cost.out_every * win.dt_nav
-    crb = drift.noise_limit(dcfg["window_h"], dt_out, win.lat0, win.init.cbn(), arw, dcfg["initial_condition"],
-                            win.h0, white, 1.0 / win.sample_rate_hz)[0] / DEG_PER_H
+    crb = drift_crb(session, win, cost.out_every * win.dt_nav, dcfg["initial_condition"]).sigma_deg_h()
     z_total = (est - truth) / crb
     z_opt = (est - eps_min) / crb
     log(f"particles={settings.particles} generations={G}: rms error {np.sqrt(np.mean(z_total ** 2)):.3g} bounds, "
