@@ -114,7 +114,7 @@ def main(argv):
         os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
         env = setup()
         # beside the tests: the small workflow, its lint, the CF check of its products, the docs (_chain below)
-        chain = Beside("the .test workflow, its lint and the CF check of its products",
+        chain = Beside("the .test workflow, its lint, the CF check of its products and the docs build",
                        ROOT / ".test" / "results" / "logs" / "test_chain.log", sys.executable, __file__, "_chain",
                        env=env)
         with chain:
