@@ -31,7 +31,8 @@ as ``n = K w`` with ``w`` standard normal (the discretised process noise of each
 Loan's integral, and the measurement noise), the rows of K are scaled to unit variance, and one QR decomposition
 ``K^T = Q R`` gives the Cholesky factor of the scaled Sigma (``Sigma_s = R^T R``); ``F`` is then the Gram
 matrix of ``R^-T J`` (a triangular solve). Dense sampling makes Sigma ill conditioned (positions are integrals
-of velocities); its condition number is reported with the bound.
+of velocities); its condition number is reported with the bound (about 1.7e11 for 1 h and 7e11 for 3 h at 60 s,
+which leaves the bound accurate to ~1e-5 relative: the tests check it against closed forms to that level).
 """
 from __future__ import annotations
 
