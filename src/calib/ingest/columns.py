@@ -12,6 +12,7 @@ from calib.ingest.common import (
     data_file,
     declared_rate,
     finish,
+    present_triads,
     parse_numeric,
     read_table,
     serr,
@@ -26,7 +27,7 @@ KEYS = {"file", "delimiter", "header", "comment", "skip_rows", "time", "sample_r
 
 def _table_triads(settings, path, names, n_cols):
     out = {}
-    for tri in ("accel", "gyro"):
+    for tri in present_triads(settings):
         cols = settings[tri].get("columns")
         if not isinstance(cols, (list, tuple)) or len(cols) != 3:
             raise serr(settings, f"{tri}.columns", f"value {cols!r}: three column names or 0-based indices (x, y, z)")
@@ -42,11 +43,11 @@ def import_columns(settings) -> xr.Dataset:
     ``comment`` (line prefix), ``skip_rows``; ``accel.columns`` / ``gyro.columns``: three names (with a
     header) or 0-based indices, in body-axis order x, y, z (a permutation remaps axes; ``sign`` flips them);
     ``time: {column, units: s|ms|us|ns}`` and/or ``sample_rate_hz`` (at least one; with a time column the rate
-    is its least-squares clock, :func:`calib.signal.clock.fit_clock`, and a declared rate is checked against it);
+    is its least-squares clock, :func:`calib.core.clock.fit_clock`, and a declared rate is checked against it);
     optional ``temperature: {column}`` [degC]. Every row must have the header's (or the first row's)
     number of fields.
     """
-    check_keys(settings, "columns", KEYS)
+    check_keys(settings, "columns", KEYS, partial=True)
     path = data_file(settings, "file")
     delim = settings.get("delimiter")
     header = bool(settings.get("header", False))
@@ -54,7 +55,8 @@ def import_columns(settings) -> xr.Dataset:
                                         skip_rows=int(settings.get("skip_rows", 0)))
     n_cols = len(names) if names else len(split_fields(lines[0], delim))
     cols = _table_triads(settings, path, names, n_cols)
-    use = cols["accel"] + cols["gyro"]
+    tris = list(cols)   # the declared triads (one of them: a partial record)
+    use = [c for tri in tris for c in cols[tri]]
     tcfg, tcol = settings.get("time"), None
     if tcfg is not None:
         if not isinstance(tcfg, dict) or "column" not in tcfg:
@@ -74,18 +76,21 @@ def import_columns(settings) -> xr.Dataset:
     data = parse_numeric(path, lines, numbers, use, names, delim)
     labels = [names[c] if names else f"column {c}" for c in use]
     check_finite_columns(path, data, labels, numbers)
-    accel, gyro = data[:, 0:3], data[:, 3:6]
+    triads = {tri: data[:, 3 * j:3 * j + 3] for j, tri in enumerate(tris)}
+    accel, gyro = triads.get("accel"), triads.get("gyro")
     fs_decl = declared_rate(settings, required=tcol is None)
     time, clock_attrs = None, {}
     if tcol is not None:
-        time = data[:, 6] * TIME_UNITS[settings["time"].get("units", "s")]
-        fs, clk = time_clock(path, time, labels[6], numbers, fs_decl, settings)
+        jt = 3 * len(tris)
+        time = data[:, jt] * TIME_UNITS[settings["time"].get("units", "s")]
+        fs, clk = time_clock(path, time, labels[jt], numbers, fs_decl, settings)
         clock_attrs = clk.attrs()
     else:
         fs = fs_decl
     temperature = data[:, -1] if temp_col is not None else None
-    mapping = {tri: ", ".join(f"{ax}={int(np.sign(f)):+d}*{abs(f):g}*{labels[j]}"
-                              for ax, f, j in zip("xyz", triad_settings(settings, tri)["factor"], off))
-               for tri, off in (("accel", range(0, 3)), ("gyro", range(3, 6)))}
+    mapping = {f"{tri}_column_map": ", ".join(f"{ax}={int(np.sign(f)):+d}*{abs(f):g}*{labels[j]}"
+                                              for ax, f, j in zip("xyz", triad_settings(settings, tri)["factor"],
+                                                                  range(3 * k, 3 * k + 3)))
+               for k, tri in enumerate(tris)}
     return finish(settings, "columns", path, accel, gyro, fs, time=time, sources=(path,), temperature=temperature,
-                   extra={"accel_column_map": mapping["accel"], "gyro_column_map": mapping["gyro"], **clock_attrs})
+                   extra={**mapping, **clock_attrs})

@@ -63,9 +63,12 @@ def load_settings(path, data_root=None) -> dict:
     return s
 
 
-def check_keys(settings, fmt, format_keys):
+def check_keys(settings, fmt, format_keys, partial: bool = False, triad_keys=()):
     """Refuse keys that are neither common nor among the ``format_keys`` of format ``fmt`` (its module's ``KEYS``),
-    and triad declarations that are missing or hold unknown keys."""
+    and triad declarations that are missing or hold unknown keys. ``partial``: the format maps each triad's
+    columns or variables, so a recording may hold one triad only -- the other simply not declared (a partial
+    record, :func:`present_triads`); at least one is needed. ``triad_keys``: the format's own keys of a triad
+    declaration besides :data:`TRIAD_KEYS`."""
     allowed = COMMON_KEYS | set(format_keys)
     for key in settings:
         if key.startswith("_"):
@@ -73,15 +76,24 @@ def check_keys(settings, fmt, format_keys):
         if key not in allowed:
             raise serr(settings, key, f"unknown key for format '{fmt}'",
                         f"remove it or correct the spelling (allowed: {', '.join(sorted(allowed))})")
-    for tri in ("accel", "gyro"):
+    if partial and not any(settings.get(tri) is not None for tri in recording.SENSORS):
+        raise serr(settings, "accel", "neither triad declared (accel, gyro)",
+                   "declare the accelerometer, the gyroscope or both: accel: {units: ..., sample_kind: rate, ...}")
+    for tri in present_triads(settings) if partial else recording.SENSORS:
         t = settings.get(tri)
         if not isinstance(t, dict):
             raise serr(settings, tri, "triad declaration missing or not a mapping",
                         f"declare {tri}: {{units: ..., sample_kind: rate|increment}}")
         for key in t:
-            if key not in TRIAD_KEYS:
+            if key not in TRIAD_KEYS | set(triad_keys):
                 raise serr(settings, f"{tri}.{key}", "unknown key",
-                            f"allowed: {', '.join(sorted(TRIAD_KEYS))}")
+                            f"allowed: {', '.join(sorted(TRIAD_KEYS | set(triad_keys)))}")
+
+
+def present_triads(settings) -> tuple:
+    """The triads the settings declare (``accel``, ``gyro``); a format that maps columns or variables
+    (``check_keys(..., partial=True)``) imports a recording of one triad alone, the other declared absent."""
+    return tuple(tri for tri in recording.SENSORS if settings.get(tri) is not None)
 
 
 def default_data_root() -> Path:
@@ -374,15 +386,23 @@ def apply_triad(raw, tri):
 
 
 def finish(settings, fmt, path, accel, gyro, fs, *, time=None, sources=(), segments=None, segment_index=None,
+    """The ``calib-recording-1`` dataset of the imported samples after the unit checks; ``accel`` or ``gyro``
+    None: a partial record (that triad not declared in the settings; written as declared absent)."""
             temperature=None, extra=None):
     lat, h, g = site_attrs(settings)
-    ta, tg = triad_settings(settings, "accel"), triad_settings(settings, "gyro")
-    accel = apply_triad(accel, ta)
-    gyro = apply_triad(gyro, tg)
-    if len(accel) < 2:
-        raise ImportDataError(path, "time", f"only {len(accel)} samples", "import a longer recording")
-    check = check_accel_units(path, settings, accel, ta, fs, gravity_ref(lat, h, g))
-    check_gyro_peak(path, gyro, tg, fs)
+    ta = triad_settings(settings, "accel") if accel is not None else {"units": None, "kind": None}
+    tg = triad_settings(settings, "gyro") if gyro is not None else {"units": None, "kind": None}
+    accel = apply_triad(accel, ta) if accel is not None else None
+    gyro = apply_triad(gyro, tg) if gyro is not None else None
+    n = len(accel if accel is not None else gyro)
+    if n < 2:
+        raise ImportDataError(path, "time", f"only {n} samples", "import a longer recording")
+    if accel is not None:
+        check = check_accel_units(path, settings, accel, ta, fs, gravity_ref(lat, h, g))
+    else:
+        check = "no accelerometer (partial record): gravity-norm check not applicable"
+    if gyro is not None:
+        check_gyro_peak(path, gyro, tg, fs)
     attrs = {"import_format": fmt, "units_check": check,
              "source_files": "; ".join(display_name(settings, p) for p in sources),
              "source_sha256": "; ".join(f"{Path(p).name}={sha256(p)}" for p in sources),

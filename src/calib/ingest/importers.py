@@ -14,13 +14,15 @@ from calib.ingest.common import ImportDataError, default_data_root, load_setting
 from calib.ingest.columns import import_columns
 from calib.ingest.imu_tk import import_imu_tk
 from calib.ingest.imucal import import_imucal
+from calib.ingest.matlab import import_matlab
 from calib.ingest.mikoff import import_mikoff
 from calib.ingest.npz_columns import import_npz_columns
 from calib.ingest.rosbag import import_rosbag
 
 #: format name (the settings' ``format``) -> its importer
 IMPORTERS = {"imu_tk": import_imu_tk, "imucal": import_imucal, "mikoff": import_mikoff,
-             "npz_columns": import_npz_columns, "columns": import_columns, "rosbag": import_rosbag}
+             "npz_columns": import_npz_columns, "columns": import_columns, "rosbag": import_rosbag,
+             "matlab": import_matlab}
 FORMATS = tuple(IMPORTERS)
 
 

@@ -11,6 +11,7 @@ from calib.ingest.common import (
     data_file,
     declared_rate,
     finish,
+    present_triads,
     serr,
 )
 
@@ -22,7 +23,7 @@ def import_npz_columns(settings) -> xr.Dataset:
     """NumPy ``.npz`` with a 2-D ``data`` array and a ``columns`` array of names (keys configurable by
     ``data_key`` / ``columns_key``). ``accel.columns`` / ``gyro.columns`` name the three columns of each triad
     in body-axis order; ``sample_rate_hz`` required. Loaded with ``allow_pickle=False``."""
-    check_keys(settings, "npz_columns", KEYS)
+    check_keys(settings, "npz_columns", KEYS, partial=True)
     path = data_file(settings, "file")
     fs = declared_rate(settings)
     dk, ck = settings.get("data_key", "data"), settings.get("columns_key", "columns")
@@ -44,7 +45,8 @@ def import_npz_columns(settings) -> xr.Dataset:
         raise ImportDataError(path, ck, f"{len(names)} column names for data of shape {data.shape}",
                               "the file's data and columns arrays do not match")
     cols = {}
-    for tri in ("accel", "gyro"):
+    tris = present_triads(settings)   # one of them: a partial record
+    for tri in tris:
         c = settings[tri].get("columns")
         if not isinstance(c, (list, tuple)) or len(c) != 3:
             raise serr(settings, f"{tri}.columns", f"value {c!r}: three column names (x, y, z)")
@@ -53,7 +55,8 @@ def import_npz_columns(settings) -> xr.Dataset:
                 raise ImportDataError(path, ck, f"column {name!r} (settings '{tri}.columns') not among {names}",
                                       "correct the column names in the settings")
         cols[tri] = [names.index(name) for name in c]
-    use = cols["accel"] + cols["gyro"]
+    use = [c for tri in tris for c in cols[tri]]
     sub = data[:, use]
     check_finite_columns(path, sub, [names[i] for i in use])
-    return finish(settings, "npz_columns", path, sub[:, :3], sub[:, 3:], fs, sources=(path,))
+    triads = {tri: sub[:, 3 * j:3 * j + 3] for j, tri in enumerate(tris)}
+    return finish(settings, "npz_columns", path, triads.get("accel"), triads.get("gyro"), fs, sources=(path,))

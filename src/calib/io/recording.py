@@ -7,7 +7,9 @@ dims ``time`` and ``axis`` (= x, y, z); optional ``segment``, ``row``, ``col``.
 * ``time(time)`` seconds from the start, **or** (long files) no ``time`` variable and the global
   attributes ``t0_s`` and ``sample_rate_hz`` alone.
 * ``accel(time, axis)``, ``gyro(time, axis)``: raw output per sample. Attributes ``sample_kind``
-  (``rate`` | ``increment``) and ``units``.
+  (``rate`` | ``increment``) and ``units``. A partial record (accelerometers only, or gyroscopes only) leaves
+  the absent triad's variable out and names it in the global attribute ``absent_sensors`` (``"gyro"`` or
+  ``"accel"``): declared, never zero-filled. A variable missing without that declaration is refused.
 * optional ``temperature(time)`` [degC], ``segment_index(time)`` (int, -1 for transitions),
   ``table_angle(time)`` [deg about the current rotation axis].
 * optional segment table on ``segment``: ``segment_kind`` (static | rotation), ``segment_label``,
@@ -51,6 +53,8 @@ if TYPE_CHECKING:   # imported where a dataset is made: checking a file (validat
 
 CONVENTIONS = "calib-recording-1"
 AXES = ("x", "y", "z")
+#: the two triads of a recording; a partial record holds one of them (global attribute ``absent_sensors``)
+SENSORS = ("accel", "gyro")
 
 #: allowed units per (sensor, sample_kind)
 UNITS = {
@@ -118,6 +122,17 @@ class Header:
     @property
     def dt(self) -> float:
         return 1.0 / self.sample_rate_hz
+
+    @property
+    def sensors(self) -> tuple:
+        """The triads the recording holds: ``("accel", "gyro")``, or one of them for a partial record (the other's
+        kind and units are then None)."""
+        return tuple(s for s, k in (("accel", self.accel_kind), ("gyro", self.gyro_kind)) if k is not None)
+
+    @property
+    def absent(self) -> tuple:
+        """The triads a partial record declares absent (``absent_sensors``)."""
+        return tuple(s for s in SENSORS if s not in self.sensors)
 
     @property
     def duration_s(self) -> float:
@@ -258,9 +273,18 @@ def _header(path, nc) -> Header:
         raise RecordingError(path, "sample_time_convention", f"value {conv_t!r} unknown",
                              f"one of {', '.join(SAMPLE_TIME_CONVENTIONS)} (default {SAMPLE_TIME_CONVENTIONS[0]})")
     kinds = {}
-    for var in ("accel", "gyro"):
+    absent = declared_absent(path, _attr(nc, "absent_sensors", ""))
+    for var in SENSORS:
+        if var in absent:
+            if var in nc.variables:
+                raise RecordingError(path, var, "variable present but declared absent (absent_sensors)",
+                                     f"remove '{var}' from the global attribute absent_sensors or the variable")
+            kinds[var] = (None, None)
+            continue
         if var not in nc.variables:
-            raise RecordingError(path, var, "variable missing")
+            raise RecordingError(path, var, "variable missing",
+                                 f"import it, or declare a partial record: absent_sensors = \"{var}\" (calib import "
+                                 f"does so when the settings leave '{var}' out)")
         v = nc.variables[var]
         if v.dimensions != ("time", "axis"):
             raise RecordingError(path, var, f"dimensions {v.dimensions}, expected ('time', 'axis')")
@@ -314,6 +338,33 @@ def _header(path, nc) -> Header:
     attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
     return Header(str(path), n, fs, t0, has_time, lat, height, g,
                   kinds["accel"][0], kinds["accel"][1], kinds["gyro"][0], kinds["gyro"][1], attrs)
+
+
+def declared_absent(path, value) -> tuple:
+    """The triads named by a global attribute ``absent_sensors`` (space or comma separated); at most one."""
+    names = tuple(str(value).replace(",", " ").split())
+    for name in names:
+        if name not in SENSORS:
+            raise RecordingError(path, "absent_sensors", f"value {value!r}: names {name!r}",
+                                 "name the absent triad: 'accel' or 'gyro'")
+    if len(set(names)) == len(SENSORS):
+        raise RecordingError(path, "absent_sensors", f"value {value!r}: a recording needs at least one triad",
+                             "import the accelerometer or the gyroscope (or both)")
+    return names
+
+
+def require_sensors(header: Header, needed=SENSORS, path=None) -> None:
+    """Refuse (:class:`RecordingError`, exit 2) a partial record that lacks a triad in ``needed``, naming it and
+    what a partial record can go through instead."""
+    missing = [s for s in needed if s not in header.sensors]
+    if not missing:
+        return
+    holds = {"accel": "accelerometers", "gyro": "gyroscopes"}[header.sensors[0]]
+    want = " and ".join({"accel": "the accelerometer", "gyro": "the gyroscope"}[s] for s in missing)
+    raise RecordingError(path or header.path, missing[0], f"the recording holds {holds} only (absent_sensors = "
+                         f"{' '.join(header.absent)!r}); this command needs {want} as well",
+                         "give a recording of both triads; a partial record goes through calib validate, calib "
+                         "noise (either triad) and calib fieldcal (accelerometer calibration)")
 
 
 def _check_finite(path, name, arr, offset=0):
@@ -430,7 +481,7 @@ PER_SAMPLE_SLICE = 1_000_000
 def _validate_body(path, h: Header, on_chunk=None) -> None:
     with netCDF4.Dataset(path, "r") as nc:   # the segment table and temperature, decoded as xarray decodes them
         var = nc.variables
-        fills = {v: fill_values(var[v]) for v in ("accel", "gyro")}
+        fills = {v: fill_values(var[v]) for v in SENSORS if v in var}
         nseg = len(nc.dimensions["segment"]) if "segment" in nc.dimensions else 0
         if "segment_index" in var:
             si = var["segment_index"]
@@ -464,10 +515,10 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
             else:
                 _check_finite(path, "temperature", float_values(tv))
     for start, acc, gyr in iter_raw_chunks(path, h):
-        _check_finite(path, "accel", acc, start)
-        _check_finite(path, "gyro", gyr, start)
-        _check_fill(path, "accel", acc, fills["accel"], start)
-        _check_fill(path, "gyro", gyr, fills["gyro"], start)
+        for name, arr in (("accel", acc), ("gyro", gyr)):
+            if arr is not None:   # (None: the triad a partial record declares absent)
+                _check_finite(path, name, arr, start)
+                _check_fill(path, name, arr, fills[name], start)
         if on_chunk is not None:
             try:
                 on_chunk(start, acc, gyr)
@@ -503,7 +554,7 @@ def open_slices(path, header: Header | None = None, chunk: int = 1_000_000, star
                 auto_scale: bool = True):
     """The reading of ``[start, stop)`` in slices of about ``chunk`` samples made of whole chunks of the file
     (:func:`slice_bounds`): ``(open dataset, [(i0, i1), ...], read(i0, i1) -> (accel, gyro))``, raw float64 (n, 3);
-    the caller closes the dataset. Every chunk of the file is read once, by one read, straight into the output (a
+    the caller closes the dataset; a triad a partial record declares absent reads as None. Every chunk of the file is read once, by one read, straight into the output (a
     slice across two chunks made the library read each of them twice: 2.3 against 0.7-0.8 s for the 240 h
     recording). ``auto_scale``: netCDF's scale_factor / add_offset applied (the navigation reads without)."""
     h = header or read_header(path)
@@ -512,11 +563,12 @@ def open_slices(path, header: Header | None = None, chunk: int = 1_000_000, star
     try:
         nc.set_auto_mask(False)
         nc.set_auto_scale(auto_scale)
-        va, vg = nc.variables["accel"], nc.variables["gyro"]
-        tc = time_chunk(va)
-        if tc != time_chunk(vg):
+        va, vg = nc.variables.get("accel"), nc.variables.get("gyro")   # (None: declared absent)
+        present = [v for v in (va, vg) if v is not None]
+        tc = time_chunk(present[0])
+        if any(time_chunk(v) != tc for v in present):
             tc = None   # different layouts: no common alignment, plain slices
-        for v in (va, vg):
+        for v in present:
             v.set_var_chunk_cache(size=0)   # whole chunks only: no cache, no second copy
         bounds = slice_bounds(tc, max(int(start), 0), stop, chunk)
     except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
@@ -525,7 +577,7 @@ def open_slices(path, header: Header | None = None, chunk: int = 1_000_000, star
 
     def read(i0, i1):
         try:
-            return np.asarray(va[i0:i1], dtype=np.float64), np.asarray(vg[i0:i1], dtype=np.float64)
+            return tuple(None if v is None else np.asarray(v[i0:i1], dtype=np.float64) for v in (va, vg))
         except Exception as exc:  # noqa: BLE001 - corrupted sample data fail inside the library
             raise _unreadable(path, exc) from exc
 
@@ -697,20 +749,24 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
                  table_angle=None, extra_attrs=None) -> xr.Dataset:
     """Build an in-memory ``calib-recording-1`` dataset.
 
-    ``segments`` is a dict of per-segment arrays: ``segment_kind``, ``segment_label``, ``rotation_axis``
+    ``accel`` or ``gyro`` None: a partial record; that triad's variable is left out and named in the global
+    attribute ``absent_sensors`` (its units and kind are ignored). ``segments`` is a dict of per-segment arrays: ``segment_kind``, ``segment_label``, ``rotation_axis``
     (n, 3), ``rotation_rate`` (n,) deg/s, ``nominal_attitude`` (n, 3, 3).
     """
     import xarray as xr
 
-    accel = np.asarray(accel)
-    gyro = np.asarray(gyro)
-    n = accel.shape[0]
-    data = {
-        "accel": (("time", "axis"), accel, {"sample_kind": accel_kind, "units": accel_units,
-                                            "long_name": "accelerometer triad output, body frame"}),
-        "gyro": (("time", "axis"), gyro, {"sample_kind": gyro_kind, "units": gyro_units,
-                                          "long_name": "gyroscope triad output, body frame"}),
-    }
+    if accel is None and gyro is None:
+        raise ValueError("make_dataset: a recording needs the accelerometer or the gyroscope (or both)")
+    data = {}
+    if accel is not None:
+        accel = np.asarray(accel)
+        data["accel"] = (("time", "axis"), accel, {"sample_kind": accel_kind, "units": accel_units,
+                                                   "long_name": "accelerometer triad output, body frame"})
+    if gyro is not None:
+        gyro = np.asarray(gyro)
+        data["gyro"] = (("time", "axis"), gyro, {"sample_kind": gyro_kind, "units": gyro_units,
+                                                 "long_name": "gyroscope triad output, body frame"})
+    n = (accel if accel is not None else gyro).shape[0]
     coords = {"axis": list(AXES)}
     if time is None and n <= LONG_FILE_SAMPLES:
         time = t0_s + np.arange(n) / sample_rate_hz
@@ -745,6 +801,8 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
              "sample_rate_hz": float(sample_rate_hz), "source": source, "sensor": sensor}
     if time is None:
         attrs["t0_s"] = float(t0_s)
+    if accel is None or gyro is None:
+        attrs["absent_sensors"] = "accel" if accel is None else "gyro"
     if gravity_m_s2 is not None:
         attrs["gravity_m_s2"] = float(gravity_m_s2)
     if extra_attrs:
