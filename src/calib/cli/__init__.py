@@ -97,15 +97,21 @@ def _config(path):
     return cfg
 
 
-def _recording(path, force=False, what="recording"):
-    """Format check (calib.io.recording.validate) and physical plausibility of a recording before any fit."""
-    h, pl = _check_recording(path, force, what)
+#: the triads a command needs unless it says otherwise: a partial record (one triad, declared absent_sensors) is
+#: refused by name before any sample is read (calib.io.recording.require_sensors)
+BOTH = ("accel", "gyro")
+
+
+def _recording(path, force=False, what="recording", need=BOTH):
+    """Format check (calib.io.recording.validate) and physical plausibility of a recording before any fit;
+    ``need``: the triads the command needs (a partial record without one of them is refused)."""
+    h, pl = _check_recording(path, force, what, need)
     for w in pl.warnings:
         print(f"warning: {w}", file=sys.stderr)
     return h, pl
 
 
-def _check_recording(path, force, what):
+def _check_recording(path, force, what, need=BOTH):
     """``(header, plausibility)`` of a recording: its format and every sample checked (calib.io.recording.validate),
     its magnitudes judged (calib.signal.plausibility) on the samples of the same read; a refusal raises."""
     from calib.io import recording
@@ -113,6 +119,7 @@ def _check_recording(path, force, what):
 
     f = input_file(path, what)
     header = recording.read_header(f)   # (read once: the time coordinate of a long recording is read whole)
+    recording.require_sensors(header, need, f)
     check = plausibility.RecordingCheck(path, header, force=force)
     h = recording.validate(f, on_chunk=check.add, header=header)
     if check.n_seen != h.n_samples:   # known as validated already (no samples passed on): read for the judgement
@@ -197,10 +204,11 @@ def cmd_import(a):
 
 
 def cmd_validate(a):
-    h, pl = _recording(a.recording, a.force)
+    h, pl = _recording(a.recording, a.force, need=())
+    triads = "; ".join(f"{s} {k} [{u}]" if k else f"no {s} (partial record: absent_sensors)"
+                       for s, k, u in (("accel", h.accel_kind, h.accel_units), ("gyro", h.gyro_kind, h.gyro_units)))
     emit(f"{a.recording}: valid calib-recording-1, {h.n_samples} samples at {h.sample_rate_hz} Hz "
-          f"({h.duration_s / 3600:.3f} h), latitude {h.latitude_deg} deg; accel {h.accel_kind} [{h.accel_units}], "
-          f"gyro {h.gyro_kind} [{h.gyro_units}]")
+          f"({h.duration_s / 3600:.3f} h), latitude {h.latitude_deg} deg; {triads}")
     emit(f"{a.recording}: plausible: {pl.describe()}")
 
 
@@ -236,7 +244,7 @@ def cmd_fieldcal(a):
         settings = load_mapping(a.settings)
         if "format" in settings:  # an import-settings file: use its optional 'fieldcal:' section
             settings = settings.get("fieldcal")
-    h, _ = _recording(a.recording, a.force)
+    h, _ = _recording(a.recording, a.force, need=("accel",))   # accel-only: the gyro part is skipped with a note
     if a.out:
         _output_file(a.out, "calibration")
     res = fieldcal.fieldcal_recording(a.recording, settings, force=a.force)
@@ -256,6 +264,7 @@ def cmd_navigate(a):
         input_file(a.calibration, "calibration file")
     _output_file(a.out, "navigation output")
     input_file(a.recording, "recording")
+    recording.require_sensors(recording.read_header(a.recording))   # a partial record: the missing triad named
     # the recording is checked sample by sample once (reuse_validation: the navigation's load does not read it again)
     with recording.reuse_validation():
         # what needs no sample first: a calibration file of the wrong kind, a wrong pairing of units and calibration

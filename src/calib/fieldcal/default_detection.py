@@ -253,14 +253,15 @@ def candidates(acc, gyr, fs: float, protocol: Protocol, samples_per_interval=Non
         if n < 2 * w:
             continue
         sa = detect.moving_variance_norm(acc, w)
-        sg = detect.moving_variance_norm(gyr, w)
+        sg = None if gyr is None else detect.moving_variance_norm(gyr, w)   # (None: an accelerometer-only record)
         base = {}
         if protocol.initial_rest_s is not None and protocol.initial_rest_s * fs >= w:
             base = {"init_s": float(protocol.initial_rest_s)}
         else:
             n0, _ = detect.find_initial_rest(sa, w)
             if n0 < w:   # no rest long enough for this window: thresholds on the noise floor
-                base = {"floor": (float(np.percentile(sa, 10.0)), float(np.percentile(sg, 10.0)))}
+                base = {"floor": (float(np.percentile(sa, 10.0)),
+                                  float(np.percentile(sg, 10.0)) if sg is not None else None)}
         for k in DETECT_K:
             for m in sorted(mins):
                 if m < window_s / 2:
@@ -268,9 +269,13 @@ def candidates(acc, gyr, fs: float, protocol: Protocol, samples_per_interval=Non
                 det = {"rule": "detect", "window_s": float(window_s), "k": float(k), "min_interval_s": float(m)}
                 if "floor" in base:
                     fa, fg = base["floor"]
-                    if not (fa > 0 and fg > 0):
+                    if not (fa > 0 and (fg is None or fg > 0)):
                         continue
-                    det.update(threshold=k * fa, gyro_threshold=k * fg)
+                    det.update(threshold=k * fa)
+                    if fg is not None:
+                        det.update(gyro_threshold=k * fg)
+                if gyr is None:
+                    det.update(use_gyro=False)
                 else:
                     det.update({kk: v for kk, v in base.items()})
                 try:

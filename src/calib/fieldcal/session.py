@@ -40,6 +40,12 @@ from calib.fieldcal.results import (
 
 
 def _units_of(ds, var):
+#: what an accelerometer-only record's field calibration says of the gyro part (a note of the result, logged)
+NO_GYRO_NOTE = ("accelerometer only: the recording holds no gyroscope (absent_sensors), so the accelerometer is "
+                "calibrated from its static poses and the gyro calibration and the rotation check of the gyro's "
+                "units are skipped")
+
+
     units = ds[var].attrs.get("units")
     kind = ds[var].attrs.get("sample_kind", "rate")
     if units == "count":
@@ -126,6 +132,8 @@ def clock_steps(ds, src="dataset"):
 def _units_check(settings, gyr_in, gyr_units_in, accel_dirs, iv, dts, fs, ds, src, force, notes):
     """The rotation check of the gyro's units and the rate (:mod:`calib.fieldcal.units_check`), as a dict."""
     if not settings.get("units_check", True):
+    if gyr_in is None:
+        return UnitsCheck("not checked", "the recording holds no gyroscope (absent_sensors)").as_dict()
         return UnitsCheck("disabled", "settings units_check: false").as_dict()
     if not (settings.get("gyro") or {}).get("enabled", True):
         return UnitsCheck("not checked", "gyro.enabled: false").as_dict()
@@ -196,6 +204,8 @@ def _norm(inp: _Inputs, det_cfg: dict, notes: list, metrics: dict, x0=None):
         init_span = (0, int(cfg["init_samples"]) + 1)
     else:
         d = detect.detect_static(acc_in, gyr_in, fs, **det_cfg)
+        if gyr_in is None:   # an accelerometer-only record: the accel criterion alone
+            det_cfg["use_gyro"] = False
         iv = d.intervals
         if acc_units_in != "count":
             units_check = _units_check(settings, gyr_in, gyr_units_in, acc_in, iv, dts_clock, fs, ds, src,
@@ -215,7 +225,7 @@ def _norm(inp: _Inputs, det_cfg: dict, notes: list, metrics: dict, x0=None):
     if units_check is None:  # intervals chosen with the accel fit (IMU-TK rule) or accel in counts
         units_check = _units_check(settings, gyr_in, gyr_units_in, acc_fit.apply(np.asarray(ds["accel"].values)),
                                    iv, dts_clock, fs, ds, src, force, notes)
-    if gset.get("enabled", True):
+    if gset.get("enabled", True) and gyr_in is not None:
         acc_cal = acc_fit.apply(np.asarray(ds["accel"].values))
         bias_mode = gset.get("bias", "g_sensitive")
         gsens = off_cov = None
@@ -426,25 +436,40 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None, *, force: bool 
         g_src = "settings" if settings.get("gravity_m_s2") is not None else "recording attribute gravity_m_s2"
     g = float(g)
     au, af, ak = _units_of(ds, "accel")
-    gu, gf, gk = _units_of(ds, "gyro")
+    if "accel" not in ds:
+        raise FieldCalError(f"{src}: variable 'accel': the recording holds gyroscopes only (absent_sensors); the "
+                            "field calibration needs the accelerometer (the gravity norm at rest defines the poses) "
+                            "-- fix: give a recording with the accelerometer; a gyro-only static record gives its "
+                            "noise terms with calib noise")
     acc_in = np.asarray(ds["accel"].values, dtype=np.float64) * af
-    gyr_in = np.asarray(ds["gyro"].values, dtype=np.float64) * gf
     if ak == "increment":
         acc_in = acc_in / dt_nom
-    if gk == "increment":
-        gyr_in = gyr_in / dt_nom
     acc_units_in = "count" if au == "count" else "m s-2"
-    gyr_units_in = "count" if gu == "count" else "rad s-1"
+    no_gyro = "gyro" not in ds   # an accelerometer-only partial record: the accelerometer calibration alone
+    if no_gyro:
+        gu, gf, gk, gyr_in, gyr_units_in = None, None, None, None, None
+        if settings.get("method") == "ferraris":
+            raise FieldCalError(f"{src}: settings 'method' = ferraris needs the gyro's turns and the recording holds "
+                                "accelerometers only (absent_sensors) -- fix: method: norm (or auto)")
+    else:
+        gu, gf, gk = _units_of(ds, "gyro")
+        gyr_in = np.asarray(ds["gyro"].values, dtype=np.float64) * gf
+        if gk == "increment":
+            gyr_in = gyr_in / dt_nom
+        gyr_units_in = "count" if gu == "count" else "rad s-1"
     steps = clock_steps(ds, src)
-    dts_clock = np.full(len(gyr_in), dt_nom) if steps is None else np.concatenate([steps * dt_nom, [dt_nom]])
+    dts_clock = np.full(len(acc_in), dt_nom) if steps is None else np.concatenate([steps * dt_nom, [dt_nom]])
     units_check = choice = None
     method = settings.get("method", "auto")
     statics, turns = _labelled(ds)
     if method == "auto":
-        method = "ferraris" if len(statics) == 6 and len(turns) == 3 else "norm"
+        method = "ferraris" if len(statics) == 6 and len(turns) == 3 and not no_gyro else "norm"
     gset = settings.get("gyro") or {}
     notes = [f"gravity {g:.6g} m s-2 from {g_src}"]
     metrics = {}
+    if no_gyro:
+        notes.append(NO_GYRO_NOTE)
+        log.warning("%s: %s", src, NO_GYRO_NOTE)
     sensor = str(ds.attrs.get("sensor", ""))
 
     if method == "ferraris":

@@ -14,7 +14,10 @@ numbers are what the declared units say. Here, one pass over the samples:
   the reverse, rates declared as increments or the reverse, raw counts declared as a physical unit, or
   physical data declared as counts.
 
-Count recordings carry no physical scale, so only the last mistake is looked for there. The result checks
+A triad whose every sample is the same value is refused first as what it is, a placeholder and not a
+measurement (a partial record leaves the absent triad out instead: ``absent_sensors``); the triad a partial record
+does not hold is not judged. Count recordings carry no physical scale, so only the last mistake is looked for
+there. The result checks
 (:func:`check_triad_result`, :func:`check_finite_result`) apply the same idea to calibrations and navigation
 solutions: scale factors within :data:`SCALE_RANGE` for physical units (a count triad: its three scale
 factors within a factor :data:`SCALE_SPREAD_MAX` of each other), accelerometer bias at most
@@ -177,21 +180,32 @@ class RecordingCheck:
                        "gyro": _Absurd(ABSURD_GYRO_DEG_S, "deg/s", h.gyro_units)}
         self.integer_accel = True
         self.n_seen = 0
+        #: per triad held, its first sample and whether every sample so far equals it (a constant placeholder)
+        self.first = {s: None for s in h.sensors}
+        self.constant = {s: True for s in h.sensors}
 
     def add(self, i0, acc, gyr) -> None:
-        """Samples ``i0 ..`` of the raw accel and gyro (n, 3) in the declared units."""
+        """Samples ``i0 ..`` of the raw accel and gyro (n, 3) in the declared units (None: a triad the partial
+        record does not hold)."""
         with np.errstate(over="ignore", invalid="ignore"):   # overflowing samples are absurd samples, judged later
-            a = _axes_first(acc, self.fa if self.fa is not None else self.ra)
-            g = _axes_first(gyr, self.fg if self.fg is not None else 1.0)
-            self.integer_accel = self.integer_accel and bool(np.all(acc == np.round(acc)))
+            for sensor, x in (("accel", acc), ("gyro", gyr)):
+                if x is not None and len(x):
+                    if self.first[sensor] is None:
+                        self.first[sensor] = np.array(x[0], dtype=float)
+                    self.constant[sensor] = self.constant[sensor] and bool(np.all(x == self.first[sensor]))
+            a = None if acc is None else _axes_first(acc, self.fa if self.fa is not None else self.ra)
+            g = None if gyr is None else _axes_first(gyr, self.fg if self.fg is not None else 1.0)
+            self.integer_accel = self.integer_accel and (acc is None or bool(np.all(acc == np.round(acc))))
             for x, t, blocks, factor, sensor, per_unit in ((acc, a, self.blocks_a, self.fa, "accel",
                                                              earth.STANDARD_GRAVITY),
                                                             (gyr, g, self.blocks_g, self.fg, "gyro", earth.DEG)):
+                if x is None:
+                    continue
                 ss, end = blocks.add(t)   # (t's samples in the blocks completed now are overwritten)
                 if factor is not None:
                     self.absurd[sensor].add_bounded(ss, t[:, end:], per_unit, i0, end,
                                                     lambda x=x, factor=factor: _axes_first(x, factor))
-        self.n_seen += len(acc)
+        self.n_seen += len(acc if acc is not None else gyr)
 
     def finish(self) -> Plausibility:
         """The judgement on every sample added (:func:`check_recording`)."""
@@ -219,8 +233,21 @@ def _judge(c: RecordingCheck) -> Plausibility:
         res.warnings.append(f"{path}: {field_}: {message}")
 
     blocks_a, blocks_g, integer_accel = c.blocks_a, c.blocks_g, c.integer_accel
+    for sensor, first in c.first.items():   # a constant triad is a placeholder: named before any unit diagnosis
+        if first is not None and c.constant[sensor] and c.n_seen > 1:
+            refuse(sensor, f"every one of the {c.n_seen} samples is ({', '.join(f'{v:g}' for v in first)}): a constant "
+                   "placeholder, not a measurement", f"if the logger recorded no {sensor}, leave '{sensor}' out of the "
+                   "import settings (a partial record, declared absent: calib validate, noise and, with the "
+                   "accelerometer, fieldcal work on it); else check the logger's channel")
+            fa = None if sensor == "accel" else fa   # nothing physical to judge in it
+            fg = None if sensor == "gyro" else fg
     am, asd = blocks_a.arrays()
     gm, gsd = blocks_g.arrays()
+    # a partial record: the absent triad's blocks stand in as quiet (it adds nothing to the choice of blocks)
+    if "accel" not in h.sensors:
+        am, asd = np.zeros_like(gm), np.zeros_like(gsd)
+    if "gyro" not in h.sensors:
+        gm, gsd = np.zeros_like(am), np.zeros_like(asd)
     quiet = np.zeros(len(am), dtype=bool)
     if len(am):
         ok = np.isfinite(asd) & np.isfinite(gsd) & np.all(np.isfinite(am), axis=1) & np.all(np.isfinite(gm), axis=1)
@@ -234,7 +261,7 @@ def _judge(c: RecordingCheck) -> Plausibility:
         a_norm = float(np.median(np.linalg.norm(am[quiet], axis=1)))
         if fa is not None:
             _accel_physical(refuse, res, h, a_norm, fa)
-        elif not integer_accel:
+        elif not integer_accel and not c.constant.get("accel", True):
             _accel_counts(refuse, h, a_norm, ra)
         if fg is not None:
             mags = np.linalg.norm(gm[quiet], axis=1)
@@ -243,7 +270,8 @@ def _judge(c: RecordingCheck) -> Plausibility:
             res.gyro_static_deg_h = g_static / earth.DEG_PER_H
             _gyro_physical(refuse, h, g_static, noise)
     for sensor, ab in absurd.items():
-        ab.judge(refuse, sensor)
+        if sensor in h.sensors:
+            ab.judge(refuse, sensor)
     if fg is not None:
         _table_rotation_check(refuse, res, path, h, fg)
     return res
