@@ -76,7 +76,7 @@ def cmd_noise(a):
         raise InputError(f"--bootstrap must be at least 20 (got {a.bootstrap})")
     if not 0.5 <= a.confidence < 1.0:
         raise InputError(f"--confidence must be in [0.5, 1) (got {a.confidence:g})")
-    h, _ = cli._recording(a.recording, a.force)
+    h, _ = cli._recording(a.recording, a.force, need=())   # a partial record: the terms of the triad it holds
     out = cli._output_dir(a.out or Path(a.recording).with_name(Path(a.recording).stem + "_noise"))
     if a.kalibr:
         cli._output_file(a.kalibr, "Kalibr imu.yaml")
@@ -88,7 +88,10 @@ def cmd_noise(a):
         notes.append(f"{drops} dropped sample(s) in {h.n_samples}: the Allan deviation takes the samples as "
                      "uniform (each drop shifts later samples by one period)")
     data, units = {}, {}
-    for sensor in ("gyro", "accel"):
+    sensors = [s for s in ("gyro", "accel") if s in h.sensors]
+    for s in h.absent:
+        notes.append(f"no {s} in the record (a partial record, absent_sensors): its noise terms are not estimated")
+    for sensor in sensors:
         y, unit = rate_reading(ds, sensor)
         f = recording.unit_factor(unit)   # None for counts: the terms stay in the record's unit
         if f is None:
@@ -96,11 +99,16 @@ def cmd_noise(a):
         else:
             si = "m s-2" if sensor == "accel" else "rad s-1"
             data[sensor], units[sensor] = y * f, si
-    if units["accel"] == "m s-2":
+    if units.get("accel") == "m s-2":
         w = _static_check(data["accel"], fs)
         if w:
             notes.append(w)
             print(f"warning: {w}", file=sys.stderr)
+    if a.kalibr and h.absent:
+        raise InputError(f"Kalibr's imu.yaml needs the noise of both triads and the record holds no "
+                         f"{' or '.join(h.absent)} (a partial record)", file=a.recording, field="--kalibr",
+                         fix="drop --kalibr (noise.json and noise.md hold the terms of the triad recorded), or give "
+                             "a static record of both triads")
     if a.kalibr and (units["accel"] != "m s-2" or units["gyro"] != "rad s-1"):
         raise InputError(f"Kalibr needs SI rates, the record is accel [{units['accel']}], gyro [{units['gyro']}]",
                          file=a.recording, field="--kalibr",
@@ -111,15 +119,20 @@ def cmd_noise(a):
                          field="--topic", fix="pass --topic /imu (the topic Kalibr will read)")
     results = {}
     for k, sensor in enumerate(("gyro", "accel")):
+        if sensor not in data:
+            continue
         bar = Progress(a.bootstrap, f"bootstrap {sensor}")
         try:
             results[sensor] = ieee952.noise_terms(data[sensor], fs, confidence=a.confidence, n_boot=a.bootstrap,
                                                   seed=a.seed + k, unit=units[sensor],
                                                   progress=lambda d, n: bar(d))
         except ieee952.NoiseTermsError as exc:
-            raise InputError(str(exc), file=a.recording, field=sensor, fix="record a longer static period") from None
+            raise InputError(str(exc), file=a.recording, field=sensor, fix=exc.fix) from None
+        for s in results[sensor].short_record_notes():   # the tau range, the terms not estimated, a misfit
+            notes.append(f"{sensor}: {s}")
+            print(f"calib noise: {sensor}: {s}", file=sys.stderr)
     kal = ieee952.kalibr_parameters(results["gyro"], results["accel"]) \
-        if units["accel"] == "m s-2" and units["gyro"] == "rad s-1" else None
+        if units.get("accel") == "m s-2" and units.get("gyro") == "rad s-1" else None
     src = Path(a.recording).name
     rep = {"source": str(a.recording), "source_sha256": sha256(a.recording), "calib_version": _version(),
            "model": "AVAR(tau) = 3 Q^2/tau^2 + N^2/tau + (2 ln 2/pi) B^2 + K^2 tau/3 (IEEE Std 952-1997 Annex C)",

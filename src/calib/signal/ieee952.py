@@ -36,7 +36,8 @@ Intervals: parametric bootstrap. The fitted model is simulated ``n_boot`` times 
 (white rate noise, random walk, white phase noise, and flicker rate noise by spectral shaping), each replicate
 goes through the same overlapping Allan deviation (the same taus), term selection and fit, and the interval is the
 *basic bootstrap interval on the log scale*, [theta^2 / q_hi, theta^2 / q_lo] with q the replicates' quantiles,
-which carries the estimator's multiplicative bias and skew (the fitted random walk of a short record is skewed and
+whose centre, theta^2 / q_50, is the reported (bias-corrected) estimate of a resolved term: the interval
+carries the estimator's multiplicative bias and skew (the fitted random walk of a short record is skewed and
 biased low; on simulated white noise + random walk the plain percentile interval covered the truth at 92 % for N
 and 89 % for K with this term selection, 77 % and 73 % with all four terms always fitted). The Allan deviations at different taus of one record are strongly correlated,
 so intervals from the fit's own weights (independent taus) would be about 1.4 times too narrow for N; the
@@ -59,6 +60,7 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+from scipy.stats import binom
 
 from calib.core.distributions import chi2_ppf
 from calib.signal import allan
@@ -76,6 +78,10 @@ ALPHA = {"Q": 2, "N": 0, "B": -1, "K": -2}
 FLOOR = math.sqrt(2.0 * math.log(2.0) / math.pi)
 #: largest number of simulated phase values held at once in the bootstrap (memory: 8 bytes each)
 BATCH_VALUES = 8_000_000
+#: tail probability below which the points of the fitted model outside the band say the model misfits the record
+MISFIT_P = 0.01
+#: record lengths over which the bootstrap synthesises flicker noise before cutting one record out
+FLICKER_SPAN = 4
 
 DEFINITIONS = {
     "Q": "quantization noise (angle / velocity quantization): AVAR term 3 Q^2 / tau^2, slope -1 on the log-log "
@@ -90,7 +96,17 @@ DEFINITIONS = {
 
 
 class NoiseTermsError(ValueError):
-    """A record that gives no noise terms (too short, flat, non-finite); the message says why."""
+    """A record that gives no noise terms (too short, flat, non-finite); the message says why, ``fix`` what to
+    do."""
+
+    def __init__(self, message, fix="record a longer static period"):
+        super().__init__(message)
+        self.fix = fix
+
+
+#: the fix of a flat (constant) channel: a placeholder for a triad the logger did not record
+FLAT_FIX = ("a constant channel holds no measurement: if the logger recorded no such triad, leave it out of the "
+            "import settings (a partial record, declared absent); else check the channel")
 
 
 # --------------------------------------------------------------------------- degrees of freedom
@@ -199,11 +215,15 @@ def simulate_phase(values: dict, n: int, fs: float, reps: int, rng) -> np.ndarra
     _integrate(theta, zw, zk if has_k else np.zeros_like(zw), coef["N"] * math.sqrt(fs),
                coef["K"] * math.sqrt(dt) if has_k else np.zeros(cols), dt)
     if np.any(coef["B"] > 0):
-        f = np.fft.rfftfreq(n, dt)
+        # synthesised over FLICKER_SPAN record lengths and cut to one: a record of flicker noise also holds the
+        # frequencies below 1 / T (a synthesis of one record length leaves them out, and its Allan deviation at
+        # tau = T / 2 was 0.78 of the law, which biased every replicate's fit against the model it was drawn from)
+        n_syn = FLICKER_SPAN * n
+        f = np.fft.rfftfreq(n_syn, dt)
         amp = np.zeros_like(f)
-        amp[1:] = np.sqrt(1.0 / (math.pi * f[1:]) * n * fs / 4.0)   # one-sided PSD B^2 / (pi f)
+        amp[1:] = np.sqrt(1.0 / (math.pi * f[1:]) * n_syn * fs / 4.0)   # one-sided PSD B^2 / (pi f)
         z = rng.standard_normal((len(f), cols)) + 1j * rng.standard_normal((len(f), cols))
-        y = np.fft.irfft(z * amp[:, None], n, axis=0) * coef["B"]
+        y = np.fft.irfft(z * amp[:, None], n_syn, axis=0)[:n] * coef["B"]
         theta[1:] += np.cumsum(y * dt, axis=0)
     if np.any(coef["Q"] > 0):
         theta += rng.standard_normal((n + 1, cols)) * coef["Q"]
@@ -216,7 +236,8 @@ def _replicate_fits(values, res: allan.AllanResult, n_boot: int, seed: int, pena
     n = res.n_samples
     naxes = res.adev.shape[1]
     rng = np.random.default_rng(seed)
-    per = max(1, min(n_boot, BATCH_VALUES // ((n + 1) * naxes)))
+    span = FLICKER_SPAN if np.any(np.asarray(values)[TERMS.index("B")] > 0) else 1   # (the flicker synthesis' size)
+    per = max(1, min(n_boot, BATCH_VALUES // ((n + 1) * naxes * span)))
     out = []
     done = 0
     vals = dict(zip(TERMS, values))
@@ -248,17 +269,22 @@ def band_upper_bounds(tau, hi) -> np.ndarray:
 
 def log_basic_interval(value, reps, confidence: float, upper_cap):
     """Basic bootstrap interval on the log scale, [value^2 / q_hi, value^2 / q_lo], q the replicates' (axis 0)
-    quantiles. Where ``value`` is 0 or the lower quantile is 0 (the term is not distinguished from zero), [0,
-    ``upper_cap``]. Returns (lo, hi, resolved)."""
+    quantiles, and its point estimate, the bias-corrected value^2 / q_50 (the replicates' median): the interval
+    corrects the fit's bias under the fitted model (term selection, a skewed random walk), so where that bias
+    exceeds the replicates' spread the interval leaves the raw fit outside; the bias-corrected estimate lies
+    inside it. Where ``value`` is 0 or the lower quantile is 0 (the term is not distinguished from zero): [0,
+    max(``upper_cap``, 2 value)] -- the band's bound, or, when the fit itself reaches above it (a model that
+    does not follow the measured deviation), the basic interval's upper end on the linear scale, 2 value - q_lo
+    with q_lo = 0 -- and the estimate stays the raw fit. Returns (estimate, lo, hi, resolved)."""
     a = 1.0 - confidence
-    q_lo = np.quantile(reps, a / 2.0, axis=0)
-    q_hi = np.quantile(reps, 1.0 - a / 2.0, axis=0)
+    q_lo, q_50, q_hi = np.quantile(reps, [a / 2.0, 0.5, 1.0 - a / 2.0], axis=0)
     value = np.asarray(value, dtype=float)
     ok = (value > 0) & (q_lo > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         lo = np.where(ok, value**2 / np.where(q_hi > 0, q_hi, 1.0), 0.0)
-        hi = np.where(ok, value**2 / np.where(q_lo > 0, q_lo, 1.0), upper_cap)
-    return lo, np.maximum(hi, value), ok
+        hi = np.where(ok, value**2 / np.where(q_lo > 0, q_lo, 1.0), np.maximum(upper_cap, 2.0 * value))
+        est = np.where(ok, value**2 / np.where(q_50 > 0, q_50, 1.0), value)
+    return est, lo, hi, ok
 
 
 # --------------------------------------------------------------------------- result
@@ -268,8 +294,10 @@ def log_basic_interval(value, reps, confidence: float, upper_cap):
 class NoiseTerms:
     """The terms of one triad (or any set of axes) of a static record.
 
-    ``values``, ``lo``, ``hi``: {term: (naxes,)} fitted coefficient and its ``confidence`` interval (units in the
-    module docstring); ``resolved``: {term: (naxes,) bool} whether the record tells the term from zero (False:
+    ``values``, ``lo``, ``hi``: {term: (naxes,)} the coefficient and its ``confidence`` interval (units in the
+    module docstring): for a resolved term the bias-corrected estimate at the centre of its interval
+    (:func:`log_basic_interval`), for an unresolved one the raw fit; ``fitted``: the raw fit of the record;
+    ``model_outside`` (ntau, naxes): where the fitted model leaves the band of the measured deviation; ``resolved``: {term: (naxes,) bool} whether the record tells the term from zero (False:
     fitted 0, or the bootstrap's lower quantile is 0; the interval is then [0, upper bound]); ``combined``:
     {term: (value, lo, hi, resolved)} the root mean square over the axes; ``band_lo``/``band_hi`` (ntau, naxes):
     confidence band of the measured ADEV with the edf of the dominant noise type (``band_edf``, ``dominant`` its
@@ -292,15 +320,61 @@ class NoiseTerms:
     unit: str
     axes: tuple = ("x", "y", "z")
     replicates: np.ndarray | None = field(default=None, repr=False)
+    fitted: dict | None = None
+    model_outside: np.ndarray | None = None
 
     def model_adev(self, tau=None) -> np.ndarray:
         """ADEV (len(tau), naxes) of the fitted model (default: at the measured taus)."""
         tau = self.allan.tau if tau is None else tau
-        return np.sqrt(sum(term_avar(self.values, tau).values()))
+        return np.sqrt(sum(term_avar(self.fitted or self.values, tau).values()))
 
     def term_adev(self, term: str, tau=None) -> np.ndarray:
         tau = self.allan.tau if tau is None else tau
-        return np.sqrt(term_avar(self.values, tau)[term])
+        return np.sqrt(term_avar(self.fitted or self.values, tau)[term])
+
+    def model_misfit(self, p: float = MISFIT_P) -> bool:
+        """Whether the fitted model leaves the band of the measured deviation at more (tau, axis) points than
+        chance allows: the count outside has a binomial tail probability below ``p`` when each point lies outside
+        its ``confidence`` band with probability 1 - ``confidence`` (a well fitted model of stationary noise)."""
+        if self.model_outside is None:
+            return False
+        k, m = int(np.sum(self.model_outside)), self.model_outside.size
+        return k > 0 and float(binom.sf(k - 1, m, 1.0 - self.confidence)) < p
+
+    def tau_range(self) -> tuple:
+        """The shortest and longest tau [s] of the measured Allan deviation (the longest is half the record)."""
+        return float(self.allan.tau[0]), float(self.allan.tau[-1])
+
+    def not_estimated(self) -> list:
+        """The terms the record does not tell from zero on any axis (upper bounds only)."""
+        return [t for t in TERMS if not np.any(self.resolved[t])]
+
+    def short_record_notes(self) -> list:
+        """What the record's length supports, in words: the tau range, the terms it cannot estimate (and why a
+        longer record would), and where the fitted model leaves the band of the measured deviation."""
+        r = self.allan
+        t0, t1 = self.tau_range()
+        dur = r.n_samples / r.fs
+        out = [f"record of {dur:.4g} s: Allan deviation at tau = {t0:.3g} .. {t1:.4g} s (the longest tau is half the "
+               f"record)"]
+        names = {"Q": "quantization noise Q", "N": "white noise N", "B": "bias instability B",
+                 "K": "rate random walk K"}
+        why = {"Q": "it shows only at the shortest taus, below the white noise",
+               "N": "the white noise does not stand out of the other terms",
+               "B": f"its flat floor is not seen at tau <= {t1:.4g} s (a floor shows at taus of tens of seconds to "
+                    "hours: record a longer static period)",
+               "K": f"its +1/2 slope is not seen at tau <= {t1:.4g} s (a random walk shows beyond the white noise, "
+                    "typically at taus of minutes to hours: record a longer static period)"}
+        for t in self.not_estimated():
+            out.append(f"{names[t]} not estimated: the record does not tell it from zero ({why[t]}); only its upper "
+                       f"bound is given (RMS of axes < {self.combined[t][2]:.4g} {term_unit(t, self.unit)})")
+        if self.model_misfit():
+            bad = np.flatnonzero(np.any(self.model_outside, axis=1))
+            out.append(f"the fitted model leaves the {100 * self.confidence:g} % band of the measured deviation at "
+                       f"{len(bad)} of {len(r.tau)} taus ({', '.join(f'{x:.3g}' for x in r.tau[bad][:6])} s): the "
+                       "terms assume stationary noise; a step, a dropout or motion in the record breaks that, and "
+                       "the terms and intervals are then not to be trusted")
+        return out
 
     def to_dict(self) -> dict:
         """JSON-ready: per term and axis the value and interval, the combined values, the measured ADEV."""
@@ -311,9 +385,14 @@ class NoiseTerms:
             "interval_method": f"parametric bootstrap ({self.n_boot} replicates, seed {self.seed}), basic interval "
                                "on the log scale; unresolved terms: [0, upper bound from the ADEV band]",
             "term_selection": f"N and K always; Q and B where misfit + {self.penalty:g} x terms is lower",
+            "value": "resolved terms: bias-corrected estimate fit^2 / median of the replicates (inside its interval); "
+                     "unresolved terms: the fit ('fit' is the raw fit of the record throughout)",
+            "tau_range_s": list(self.tau_range()), "not_estimated": self.not_estimated(),
+            "notes": self.short_record_notes(),
             "terms": {t: {"definition": DEFINITIONS[t], "unit": term_unit(t, self.unit),
                           "axes": {ax: {"value": float(self.values[t][i]), "lo": float(self.lo[t][i]),
-                                        "hi": float(self.hi[t][i]), "resolved": bool(self.resolved[t][i])}
+                                        "hi": float(self.hi[t][i]), "resolved": bool(self.resolved[t][i]),
+                                        "fit": float((self.fitted or self.values)[t][i])}
                                    for i, ax in enumerate(self.axes)},
                           "combined_rms": dict(zip(("value", "lo", "hi", "resolved"),
                                                    (*map(float, self.combined[t][:3]), bool(self.combined[t][3]))))}
@@ -348,7 +427,8 @@ def noise_terms(y, fs: float, *, confidence: float = 0.95, n_boot: int = N_BOOT,
     try:
         res = allan.adev(y, fs, confidence=confidence, unit=unit)
     except allan.AllanError as exc:
-        raise NoiseTermsError(str(exc)) from None
+        raise NoiseTermsError(str(exc), FLAT_FIX if "constant" in str(exc) else "record a longer static period") \
+            from None
     if len(res.tau) < 4:
         raise NoiseTermsError(f"only {len(res.tau)} Allan points: record a longer static period")
     values, _ = select_fit(res, penalty)
@@ -365,15 +445,20 @@ def noise_terms(y, fs: float, *, confidence: float = 0.95, n_boot: int = N_BOOT,
         edf = np.where(dom_idx == j, e[:, None], edf)
     band_lo, band_hi = chi2_band(res.adev, edf, confidence)
     caps = band_upper_bounds(res.tau, band_hi)
-    out = {"values": {}, "lo": {}, "hi": {}, "resolved": {}, "combined": {}}
+    out = {"values": {}, "lo": {}, "hi": {}, "resolved": {}, "combined": {}, "fitted": {}}
     for i, t in enumerate(TERMS):
-        lo, hi, ok = log_basic_interval(values[i], reps[:, i, :], confidence, caps[i])
-        out["values"][t], out["lo"][t], out["hi"][t], out["resolved"][t] = values[i], lo, hi, ok
+        est, lo, hi, ok = log_basic_interval(values[i], reps[:, i, :], confidence, caps[i])
+        out["values"][t], out["lo"][t], out["hi"][t], out["resolved"][t] = est, lo, hi, ok
+        out["fitted"][t] = values[i]
         comb = np.sqrt(np.mean(values[i] ** 2))
         comb_reps = np.sqrt(np.mean(reps[:, i, :] ** 2, axis=1))
-        clo, chi, cok = log_basic_interval(comb, comb_reps, confidence, float(np.sqrt(np.mean(caps[i] ** 2))))
-        out["combined"][t] = (float(comb), float(clo), float(chi), bool(cok))
+        cest, clo, chi, cok = log_basic_interval(comb, comb_reps, confidence, float(np.sqrt(np.mean(caps[i] ** 2))))
+        out["combined"][t] = (float(cest), float(clo), float(chi), bool(cok))
+    # where the fitted model leaves the band of the measured deviation: the terms assume stationary noise
+    model = np.sqrt(sum(term_avar(dict(zip(TERMS, values)), res.tau).values()))
+    outside = (model > band_hi * (1.0 + 1e-9)) | (model < band_lo * (1.0 - 1e-9))
     return NoiseTerms(allan=res, band_lo=band_lo, band_hi=band_hi, band_edf=edf, dominant=dominant,
+                      model_outside=outside,
                       confidence=confidence, n_boot=n_boot, seed=seed, penalty=penalty, unit=unit, axes=tuple(axes),
                       replicates=reps if keep_replicates else None, **out)
 
@@ -489,7 +574,7 @@ def plot(results: dict, title: str = ""):
             ax.loglog(r.tau, r.adev[:, col], "o-", color="k", ms=3, lw=1.0, label="measured ADEV")
             ax.loglog(tt, nt.model_adev(tt)[:, col], "-", color="tab:orange", lw=1.2, label="fitted model")
             for t in TERMS:
-                if nt.values[t][col] > 0:
+                if (nt.fitted or nt.values)[t][col] > 0:
                     c, ls, lab = styles[t]
                     ax.loglog(tt, nt.term_adev(t, tt)[:, col], color=c, ls=ls, lw=1.0, label=lab)
             lo_y = max(float(np.min(nt.band_lo[:, col])) / 3.0, 1e-300)
