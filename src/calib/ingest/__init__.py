@@ -1,6 +1,7 @@
 """Import recordings made elsewhere into ``calib-recording-1`` (see :mod:`calib.io.recording`).
 
-One module per source format (``imu_tk``, ``imucal``, ``columns``, ``mikoff``, ``npz_columns``, ``rosbag``), each with
+One module per source format (``imu_tk``, ``imucal``, ``columns``, ``mikoff``, ``npz_columns``, ``rosbag``,
+``matlab``), each with
 ``import_<format>(settings) -> xarray.Dataset`` and its settings ``KEYS``; shared settings, checks and assembly in
 ``common``; the registry :data:`calib.ingest.importers.IMPORTERS` (a new format is one module plus one entry
 there). :func:`import_recording` (re-exported here from ``importers``) dispatches on ``settings['format']`` and
@@ -32,7 +33,8 @@ Settings keys
 Common to all formats:
 
 ``format`` (required)
-    ``imu_tk`` | ``imucal`` | ``mikoff`` | ``npz_columns`` | ``columns``.
+    ``imu_tk`` | ``imucal`` | ``mikoff`` | ``npz_columns`` | ``columns`` | ``rosbag`` | ``matlab``; an example
+    settings file of each is in ``config/import/examples``.
 ``latitude_deg`` (required), ``height_m`` (default 0), ``gravity_m_s2`` (optional local gravity, m s-2)
     Site; stored as global attributes. ``site_note``: free text on where the site values come from.
 ``sensor``, ``description``: free text stored as attributes.
@@ -41,7 +43,9 @@ Common to all formats:
     Without it (the shipped settings): the ``data_root`` given to :func:`load_settings` (a workflow config's
     ``data_root`` key), else ``$CALIB_DATA``, else the shared data folder ``../shared/data`` beside the
     repository (:func:`default_data_root`).
-``accel``, ``gyro`` (required): triad declarations, keys
+``accel``, ``gyro`` (required; ``columns``, ``npz_columns`` and ``matlab`` take one of them alone: a partial
+    record of accelerometers only or gyroscopes only, the absent triad declared as such in the recording's
+    ``absent_sensors`` attribute, never zero-filled): triad declarations, keys
     ``units`` (required; one of :data:`calib.io.recording.UNITS` for the kind), ``sample_kind`` (required:
     ``rate`` | ``increment``), ``columns`` (format dependent), ``scale`` (number or 3 numbers, default 1),
     ``sign`` (3 of +1/-1, default +1): stored value = sign * scale * raw, per body axis x, y, z (with
@@ -56,7 +60,10 @@ Per format (see each function for details): ``imu_tk``: ``files: {accel, gyro}``
 ``label_column``, ``sample_column``, ``sample_rate_hz``, ``rotation: {angle_deg, sign, rate_deg_s}``,
 ``labels``. ``mikoff``: ``file``, ``sample_rate_hz``. ``npz_columns``: ``file``, ``sample_rate_hz``,
 ``data_key``, ``columns_key``. ``columns``: ``file``, ``delimiter``, ``header``, ``comment``,
-``skip_rows``, ``time: {column, units}`` or ``sample_rate_hz``, ``temperature: {column}``.
+``skip_rows``, ``time: {column, units}`` or ``sample_rate_hz``, ``temperature: {column}``. ``matlab``: ``file``,
+per triad ``variable`` (+ ``columns``) or ``variables``, ``time: {variable, units}``, ``sample_rate_hz`` or
+``sample_rate_variable``, ``temperature: {variable}`` (:mod:`calib.ingest.matlab`). ``rosbag``: ``file``,
+``topic``, ``time_source``, ``temperature_topic``, ``sample_rate_hz``, ``start_s``, ``stop_s``.
 """
 from calib.ingest.common import ImportDataError, default_data_root, load_settings
 from calib.ingest.importers import FORMATS, IMPORTERS, import_dataset, import_recording
