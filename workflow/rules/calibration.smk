@@ -34,22 +34,55 @@ rule calibrate:
         "../scripts/calibrate.py"
 
 
-rule calibration_z:
-    """The default calibration over independent noise seeds: z-scores of every identified parameter."""
+# The z-score study's seeds as [first, stop) blocks of near-equal size, in order, one job each: at most
+# Z_SEEDS_PER_JOB seeds a block and at least two blocks (so that a local run uses both cores). A block's seeds are
+# the seeds of one run (each derives its own from its index), so the gathered table does not depend on the blocks.
+Z_SEEDS_PER_JOB = 50
+_Z_N = int(CAL.get("z_seeds", 0))
+_Z_K = max(-(-_Z_N // Z_SEEDS_PER_JOB), min(_Z_N, 2))
+Z_BLOCKS = [f"{round(i * _Z_N / _Z_K)}_{round((i + 1) * _Z_N / _Z_K)}" for i in range(_Z_K)]
+
+
+rule calibration_z_seeds:
+    """A block of seeds of the z-score study (seeds first .. stop - 1)."""
     input:
         unpack(z_noise_record_input),
     output:
-        table=report(f"{R}/calibration/zscores.csv", category="2 Calibration (Liu 2021)", caption="../report/zscores.rst"),
-        fig=report(f"{R}/calibration/zscores.png", category="2 Calibration (Liu 2021)", caption="../report/zscores.rst"),
-        metrics=f"{R}/calibration/zscores.metrics.json",
+        part=temp(f"{R}/calibration/zscores_parts/{{first}}_{{stop}}.json"),
     params:
         session=sub("calibration_session"),
         site=sub("site"),
         calibration=sub("calibration"),
         check=sub("static_check"),
         seed=session_seed(config["seeds"]["data"], "calibration_z"),
-        workdir=lambda w, output: os.path.join(os.path.dirname(output.table), "tmp_zscores"),
-    threads: 2  # seeds in forked workers; the result does not depend on their number
+        # the study's scratch folder (used by the file path only; removed when empty), shared by the blocks
+        workdir=lambda w, output: os.path.join(os.path.dirname(os.path.dirname(output.part)), "tmp_zscores"),
+    wildcard_constraints:
+        first="[0-9]+",
+        stop="[0-9]+",
+    threads: 1
+    log:
+        f"{R}/logs/calibration_z/{{first}}_{{stop}}.log",
+    benchmark:
+        f"{R}/benchmarks/calibration_z_seeds.{{first}}_{{stop}}.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/calibration_z_seeds.py"
+
+
+rule calibration_z:
+    """The default calibration over independent noise seeds: z-scores of every identified parameter (gathered from
+    the seed blocks' jobs)."""
+    input:
+        parts=expand(f"{R}/calibration/zscores_parts/{{block}}.json", block=Z_BLOCKS),
+    output:
+        table=report(f"{R}/calibration/zscores.csv", category="2 Calibration (Liu 2021)", caption="../report/zscores.rst"),
+        fig=report(f"{R}/calibration/zscores.png", category="2 Calibration (Liu 2021)", caption="../report/zscores.rst"),
+        metrics=f"{R}/calibration/zscores.metrics.json",
+    params:
+        calibration=sub("calibration"),
+    threads: 1
     log:
         f"{R}/logs/calibration_z.log",
     benchmark:

@@ -1,7 +1,24 @@
 # Diagnosis stage: does the base sensor model fit the recording, and if not, which physics is missing?
 # `diagnose` runs on the study's recording (the synthetic calibration session, or the imported one of a
-# real-recording study); `diagnosis_proof` is the concealed-effect proof (results/proof/); `diagnosis_real`
-# diagnoses every shared real recording and one with a known term injected.
+# real-recording study); the concealed-effect proof (results/proof/) runs as one job per proof session
+# (`diagnosis_proof_session`) and per detection-power scan (`diagnosis_proof_power`), gathered by
+# `diagnosis_proof`; the real-recording proof as one job per recording (`diagnosis_real_proof_recording`),
+# gathered by `diagnosis_real_proof`; `diagnosis_real` diagnoses every shared real recording and one with a known
+# term injected. The jobs' parts are temporary: the gathered products are those of one job running them all.
+from calib.studies import proof_sessions as _proof_sessions  # plain data: no numerical import when parsing
+
+PROOF_NAMES = _proof_sessions.session_names(DIAG.get("proof", {}).get("sessions"))
+POWER_NAMES = _proof_sessions.power_session_names(PROOF_NAMES, DIAG.get("proof", {}).get("power_seeds", 0))
+# the real recordings of the proof (config/import/*.yaml, or the configured subset; an unknown name is refused by
+# the gathering job, which names the known ones)
+_REAL_PROOF_ALL = sorted(os.path.splitext(os.path.basename(p))[0] for p in glob.glob("config/import/*.yaml"))
+REAL_PROOF_NAMES = [n for n in _REAL_PROOF_ALL
+                    if not DIAG.get("real_proof", {}).get("recordings") or n in DIAG["real_proof"]["recordings"]]
+
+
+wildcard_constraints:
+    proof_session="[A-Za-z0-9_]+",
+    real_recording="[A-Za-z0-9_.-]+",
 
 
 rule diagnose:
@@ -24,10 +41,59 @@ rule diagnose:
         "../scripts/diagnose.py"
 
 
-rule diagnosis_proof:
-    """Concealed-effect sessions diagnosed blind over many noise seeds; detection power."""
+rule diagnosis_proof_session:
+    """One concealed-effect session diagnosed blind over its noise seeds (a job per session)."""
     input:
         noise_record=f"{R}/data/static_check.nc",   # the unit's long static record: measured slow noise
+    output:
+        part=temp(directory(f"{R}/proof/parts/sessions/{{proof_session}}")),
+    params:
+        proof=lambda w: DIAG["proof"],
+        settings=lambda w: DIAG.get("settings", {}),
+        seed=config["seeds"]["diagnosis"],
+        session=sub("calibration_session"),
+        site=sub("site"),
+    threads: 1
+    log:
+        f"{R}/logs/diagnosis_proof/{{proof_session}}.log",
+    benchmark:
+        f"{R}/benchmarks/diagnosis_proof_session.{{proof_session}}.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/diagnosis_proof_session.py"
+
+
+rule diagnosis_proof_power:
+    """The detection-power scan of one single-effect session (its magnitudes from the session's own result)."""
+    input:
+        session=f"{R}/proof/parts/sessions/{{proof_session}}",
+        noise_record=f"{R}/data/static_check.nc",
+    output:
+        part=temp(f"{R}/proof/parts/power/{{proof_session}}.json"),
+    params:
+        proof=lambda w: DIAG["proof"],
+        settings=lambda w: DIAG.get("settings", {}),
+        seed=config["seeds"]["diagnosis"],
+        session=sub("calibration_session"),
+        site=sub("site"),
+    threads: 1
+    log:
+        f"{R}/logs/diagnosis_proof/{{proof_session}}.power.log",
+    benchmark:
+        f"{R}/benchmarks/diagnosis_proof_power.{{proof_session}}.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/diagnosis_proof_power.py"
+
+
+rule diagnosis_proof:
+    """Concealed-effect sessions diagnosed blind over many noise seeds; detection power (gathered from the
+    sessions' and scans' jobs)."""
+    input:
+        sessions=expand(f"{R}/proof/parts/sessions/{{proof_session}}", proof_session=PROOF_NAMES),
+        power=expand(f"{R}/proof/parts/power/{{proof_session}}.json", proof_session=POWER_NAMES),
     output:
         proof=f"{R}/proof/proof.json",
         table=report(f"{R}/proof/proof.csv", category="6 Diagnosis", caption="../report/proof.rst"),
@@ -40,13 +106,14 @@ rule diagnosis_proof:
         timings=f"{R}/proof/timings.json",
         metrics=f"{R}/proof/proof.metrics.json",
     params:
+        # the same params as the proof's sessions (and out): the netCDF's provenance (config_hash) hashes them
         proof=lambda w: DIAG["proof"],
         settings=lambda w: DIAG.get("settings", {}),
         seed=config["seeds"]["diagnosis"],
         session=sub("calibration_session"),
         site=sub("site"),
         out=lambda w, output: os.path.dirname(output.proof),
-    threads: 2
+    threads: 1
     log:
         f"{R}/logs/diagnosis_proof.log",
     benchmark:
@@ -79,10 +146,33 @@ rule diagnosis_real:
         "../scripts/diagnosis_real.py"
 
 
+rule diagnosis_real_proof_recording:
+    """One real recording as a proof base: its detection limits and the effects injected at twice them."""
+    input:
+        settings="config/import/{real_recording}.yaml",
+    output:
+        part=temp(f"{R}/diagnosis/real_proof/parts/{{real_recording}}.json"),
+    params:
+        cfg=lambda w: DIAG.get("real_proof", {}),
+        settings=lambda w: DIAG.get("settings", {}),
+        seed=config["seeds"]["diagnosis"],
+    threads: 1
+    log:
+        f"{R}/logs/diagnosis_real_proof/{{real_recording}}.log",
+    benchmark:
+        f"{R}/benchmarks/diagnosis_real_proof_recording.{{real_recording}}.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/diagnosis_real_proof_recording.py"
+
+
 rule diagnosis_real_proof:
-    """Real recordings as proof bases: detection limits per recording and effects injected at twice them."""
+    """Real recordings as proof bases: detection limits per recording and effects injected at twice them (gathered
+    from the recordings' jobs)."""
     input:
         settings=sorted(glob.glob("config/import/*.yaml")),
+        parts=expand(f"{R}/diagnosis/real_proof/parts/{{real_recording}}.json", real_recording=REAL_PROOF_NAMES),
     output:
         proof=f"{R}/diagnosis/real_proof/real_proof.json",
         md=report(f"{R}/diagnosis/real_proof/real_proof.md", category="6 Diagnosis", caption="../report/real_proof.rst"),
@@ -91,11 +181,10 @@ rule diagnosis_real_proof:
         metrics=f"{R}/diagnosis/real_proof/real_proof.metrics.json",
     params:
         cfg=lambda w: DIAG.get("real_proof", {}),
-        settings=lambda w: DIAG.get("settings", {}),
         seed=config["seeds"]["diagnosis"],
         out=lambda w, output: os.path.dirname(output.proof),
         config_dir=lambda w, input: os.path.dirname(input.settings[0]),
-    threads: 2
+    threads: 1
     log:
         f"{R}/logs/diagnosis_real_proof.log",
     benchmark:

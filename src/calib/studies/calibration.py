@@ -27,7 +27,7 @@ from calib.core.progress import Progress
 from calib.core.triad import PARAM_NAMES, TriadModel
 from calib.studies import stages
 from calib.core import seeds
-from calib.io.atomic import json_default, make_folder, scratch_folder, strict_json, write_text
+from calib.io.atomic import json_default, make_folder, scratch_folder, strict_json, write_json, write_text
 from calib.sim import simulator as simulate
 
 #: how the DE variants of Liu 2021 map to the figures
@@ -599,6 +599,18 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
     recordings go through files in ``workdir`` (written, read back, deleted: the reference path, slower); by
     default they stay in memory (the same datasets, tests/studies/test_calibration_z.py)."""
 
+    results = z_seed_block(session, site, ccfg, seed0, 0, n_seeds, workdir, check=check, noise_record=noise_record,
+                           workers=workers, files=files)
+    return z_products(results, ccfg, n_seeds, out_csv, fig, metrics_path, log=log)
+
+
+def z_seed_block(session: dict, site: dict, ccfg: dict, seed0: int, first: int, stop: int, workdir,
+                 check: dict | None = None, noise_record=None, workers: int = 1, files: bool = False,
+                 progress: bool = True) -> list:
+    """Seeds ``first`` .. ``stop - 1`` of the z-score study (:func:`run_z_seeds`; the workflow runs blocks of seeds
+    as jobs of their own and gathers them with :func:`z_products`): per seed, in order, its z-scores (``{"with" |
+    "segment": {"accel" | "gyro": array}}``) and the parameter names. Every seed derives its own seeds from
+    ``seed0`` and its index, so a block holds the same numbers as the same seeds of one run."""
     mode = z_noise_mode(ccfg)
     if mode == "per_seed" and check is None:
         raise ValueError("calibration.noise_record is set: the z-score study needs the static_check settings (check)")
@@ -606,35 +618,69 @@ def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int,
         raise ValueError("calibration.z_noise_record = shared needs the static_check recording (noise_record)")
     if mode not in ("none", "per_seed", "shared"):
         raise ValueError(f"calibration.z_noise_record: {mode!r}; use per_seed or shared")
+    ks = range(int(first), int(stop))
+    results = []
     # a scratch folder for the file path only (the in-memory path makes none), removed again at the end
     with scratch_folder(workdir, make=files) as workdir:
         shared = recording.load(noise_record) if mode == "shared" else None
-        z = {"with": {"accel": [], "gyro": []}, "segment": {"accel": [], "gyro": []}}
-        names = {}
-        bar = Progress(n_seeds, "noise seeds")
+        bar = Progress(len(ks), "noise seeds") if progress else None
         _Z.clear()
         _Z.update(_z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files))
         try:
-            workers = max(1, min(int(workers), n_seeds))
+            workers = max(1, min(int(workers), len(ks)))
             if workers > 1:
                 from concurrent.futures import ProcessPoolExecutor
 
                 ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork"))
-                results = ex.map(_z_seed, range(n_seeds))
+                it = ex.map(_z_seed, ks)
             else:
-                ex, results = None, map(_z_seed, range(n_seeds))
+                ex, it = None, map(_z_seed, ks)
             try:
-                for k, (out, nm) in enumerate(results):
-                    for key, zz in out.items():
-                        for sensor in ("accel", "gyro"):
-                            z[key][sensor].append(zz[sensor])
-                    names = nm
-                    bar(k + 1)
+                for i, res in enumerate(it):
+                    results.append(res)
+                    if bar is not None:
+                        bar(i + 1)
             finally:
                 if ex is not None:
                     ex.shutdown(cancel_futures=True)
         finally:
             _Z.clear()
+    return results
+
+
+def write_z_block(results: list, first: int, path) -> Path:
+    """Seeds ``first`` .. of :func:`z_seed_block` as JSON for the gathering job (arrays as lists: floats to the
+    last bit, NaN kept)."""
+    items = [{"z": {key: {s: np.asarray(v).tolist() for s, v in d.items()} for key, d in out.items()},
+              "names": {s: list(v) for s, v in names.items()}} for out, names in results]
+    return write_json({"first": int(first), "stop": int(first) + len(items), "seeds": items}, path, strict=False)
+
+
+def read_z_blocks(paths) -> list:
+    """The blocks written by :func:`write_z_block`, joined in seed order (a gap or an overlap is refused)."""
+    blocks = sorted((json.loads(Path(p).read_text()) for p in paths), key=lambda b: b["first"])
+    out, nxt = [], 0
+    for b in blocks:
+        if b["first"] != nxt:
+            raise ValueError(f"z-score seed blocks: seeds {nxt} .. {b['first'] - 1} missing or given twice")
+        out += [({key: {s: np.asarray(v, dtype=float) for s, v in d.items()} for key, d in it["z"].items()},
+                 it["names"]) for it in b["seeds"]]
+        nxt = b["stop"]
+    return out
+
+
+def z_products(results: list, ccfg: dict, n_seeds: int, out_csv, fig, metrics_path, log=print) -> dict:
+    """The z-score table, metrics and figure from every seed's result (:func:`z_seed_block`, in seed order)."""
+    if len(results) != n_seeds:
+        raise ValueError(f"calibration.z_seeds: {n_seeds} seeds configured, {len(results)} results gathered")
+    mode = z_noise_mode(ccfg)
+    z = {"with": {"accel": [], "gyro": []}, "segment": {"accel": [], "gyro": []}}
+    names = {}
+    for out, nm in results:
+        for key, zz in out.items():
+            for sensor in ("accel", "gyro"):
+                z[key][sensor].append(zz[sensor])
+        names = nm
     main = "with" if mode != "none" else "segment"
     header = "sensor,parameter,mean_z,std_z,n_seeds" + (",mean_z_segment_sigma,std_z_segment_sigma" if main == "with"
                                                         else "")

@@ -32,6 +32,7 @@ from calib.sim import simulator
 from calib.sim import physical as sim_physical
 from calib.sim import unmodelled as sim_unmodelled
 from calib.studies.diagnosis_score import score
+from calib.studies.proof_sessions import PROOF_SESSIONS  # the sessions' names, kinds and effects
 from calib.core import seeds
 
 #: a reported standard error may undercut the Fisher bound by this factor before it is called overconfident (the
@@ -151,6 +152,8 @@ class FastSession:
 #: proof (100 noise + 20 power seeds of the 2.5 h session, 12.6 MB each)
 NOISE_CACHE_BYTES = 1536 * 2**20
 _NOISE: dict = {}
+#: whether :func:`shared_noise` keeps what it draws (off in a job of one session: each seed is drawn once there)
+_NOISE_KEEP = [True]
 
 
 def shared_noise(sim, seed: int):
@@ -164,64 +167,15 @@ def shared_noise(sim, seed: int):
     if hit is None:
         key, hit = sim.noise_increments(seed)
         hit.flags.writeable = False
-        if sum(v.nbytes for v in _NOISE.values()) + hit.nbytes <= NOISE_CACHE_BYTES:
+        if _NOISE_KEEP[0] and sum(v.nbytes for v in _NOISE.values()) + hit.nbytes <= NOISE_CACHE_BYTES:
             _NOISE[key] = hit
     return hit
+
 
 
 def clear_shared_noise():
     """Forget the noise increments kept by :func:`shared_noise`."""
     _NOISE.clear()
-
-
-#: the proof's sessions: (kind, effects config). Magnitudes: the registry defaults unless noted.
-PROOF_SESSIONS = {
-    "null_a": ("null", {}, {}),
-    "null_b": ("null", {}, {"dwell_s": 40.0, "site": {"latitude_deg": 52.0, "height_m": 100.0}}),
-    "accel_quadratic_nonlinearity": ("single", {"accel_quadratic_nonlinearity": {}}, {}),
-    "accel_cubic_nonlinearity": ("single", {"accel_cubic_nonlinearity": {}}, {}),
-    "accel_scale_asymmetry": ("single", {"accel_scale_asymmetry": {}}, {}),
-    "accel_cross_coupling": ("single", {"accel_cross_coupling": {}}, {}),
-    "accel_lever_arm": ("single", {"accel_lever_arm": {}}, {}),
-    "gyro_g_sensitivity": ("single", {"gyro_g_sensitivity": {
-        "G_deg_h_per_g": [[0.05, 0.02, -0.01], [-0.02, 0.04, 0.01], [0.01, -0.01, 0.06]]}}, {}),
-    "gyro_scale_asymmetry": ("single", {"gyro_scale_asymmetry": {}}, {}),
-    "gyro_scale_nonlinearity": ("single", {"gyro_scale_nonlinearity": {}}, {}),
-    "time_offset": ("single", {"time_offset": {"offset_s": 0.01}}, {}),
-    "latitude_error": ("single", {"latitude_error": {"delta_lat_deg": 0.2}}, {}),
-    # warm-up only: a slow trend is not determined next to a bias instability of a few hundred seconds on
-    # this path (the report lists it as undetermined), so it is not part of what the proof can score
-    "bias_drift": ("single", {"bias_drift": {
-        "accel_warmup_ug": [100.0, -80.0, 60.0], "accel_tau_s": 900.0, "accel_trend_ug_per_h": [0.0, 0.0, 0.0],
-        "gyro_warmup_deg_h": [0.0, 0.0, 0.0], "gyro_trend_deg_h_per_h": [0.0, 0.0, 0.0]}}, {}),
-    # the two triads' halves of the temperature effect scored on their own, each exactly per sensor (the registry
-    # default puts the gyro temperature bias at 1.4 Fisher bounds, calib.sim.fisher: not detectable by anything).
-    # The gyro warm-up is not a proof session: on this path the diagnosis's 1-sigma error (0.15 deg/h) exceeds ten
-    # times its typical magnitude, so it is listed untestable at any size (README, "Fisher bounds")
-    "temperature_sensitivity": ("single", {"temperature_sensitivity": {
-        "gyro_bias_deg_h_per_degC": [0.0, 0.0, 0.0], "gyro_scale_ppm_per_degC": [0.0, 0.0, 0.0]}}, {}),
-    "temperature_sensitivity_gyro": ("single", {"temperature_sensitivity": {
-        "accel_bias_ug_per_degC": [0.0, 0.0, 0.0], "accel_scale_ppm_per_degC": [0.0, 0.0, 0.0],
-        "gyro_bias_deg_h_per_degC": [0.03, -0.025, 0.02], "gyro_scale_ppm_per_degC": [3.0, -2.5, 3.5]}}, {}),
-    "confounded_gravity_error": ("confounded", {"gravity_error": {"delta_g_m_s2": 5e-4}}, {}),
-    "confounded_asymmetry_vs_quadratic": ("confounded", {"accel_scale_asymmetry": {"asym_ppm": [6.0, -5.0, 4.0]}},
-                                          {}),
-    # physics outside the library (calib.sim.unmodelled, a path the diagnosis does not share): the right answer is
-    # explained = false ('unexplained' / 'inconclusive') or a finding whose rival form is disclosed
-    "unmodelled_scale_drift": ("unmodelled", {}, {"unmodelled": [
-        {"effect": "scale_drift", "sensor": "accel", "axis": "z", "ppm": 60.0}], "drop_vars": ["temperature"]}),
-    "unmodelled_periodic_gyro_bias": ("unmodelled", {}, {"unmodelled": [
-        {"effect": "periodic_bias", "sensor": "gyro", "axis": "x", "amplitude": 0.3, "period_s": 1200.0}]}),
-    "unmodelled_stop_attitude": ("unmodelled", {}, {"unmodelled": [{"effect": "stop_attitude", "arcsec": 3.0}]}),
-    "unmodelled_quartic": ("unmodelled", {}, {"unmodelled": [
-        {"effect": "quartic", "sensor": "accel", "axis": "y", "k4_ug_per_g4": 150.0}]}),
-    "unmodelled_bias_step": ("unmodelled", {}, {"unmodelled": [
-        {"effect": "bias_step", "sensor": "accel", "axis": "x", "step": 60.0}]}),
-    # a random-walk accelerometer bias (~51 ug rms wander at the end of the session; the library's bias drift is a
-    # warm-up exponential plus a trend): right when not explained or when the random-walk rival is disclosed
-    "unmodelled_random_walk_bias": ("unmodelled", {}, {"unmodelled": [
-        {"effect": "random_walk_bias", "sensor": "accel", "axis": "x", "q": 1.0}]}),
-}
 
 
 def proof_config(name, effects_override=None, base=None) -> dict:
@@ -434,28 +388,20 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
     effects and the clock offset by :mod:`calib.sim.physical`, a code path the detector does not share;
     ``"registry"`` by the simulator's :mod:`calib.sim.effects` formulas (the detector's own signatures: a
     self-consistency check only).
+
+    The sessions run in ``workers`` forked processes (every session and scan seeds itself: the result does not
+    depend on their number); the workflow instead runs each session (:func:`proof_session`) and each power scan
+    (:func:`power_scan`) as a job of its own and gathers them with :func:`assemble_proof`, the same code as here.
     """
-    if injection not in ("physical", "registry"):
-        raise ValueError(f"injection: {injection!r}, 'physical' or 'registry'")
+    _check_injection(injection)
     out_dir = Path(out_dir)
     names = list(effects) if effects else list(PROOF_SESSIONS)
-    noise_seeds = [seeds.child_seed(seed, "noise", k) for k in range(n_seeds)]
-    jobs = [(nm, noise_seeds, str(out_dir), settings, 1.0, None, base, injection) for nm in names]
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    jobs = [_session_job(nm, n_seeds, seed, out_dir, settings, base, injection) for nm in names]
+    _one_thread_blas()
     t0 = time.perf_counter()
 
-    # worker processes by fork: spawn would re-import the caller's __main__ (a Snakemake rule script cannot be
-    # re-imported); every worker seeds itself, so the result does not depend on the number of workers
     def power_job(r):
-        """The power scan of single-effect session result ``r`` (its scales from the chi-square gain of ``r``)."""
-        kind, eff, _ = PROOF_SESSIONS[r["name"]]
-        if not power_scales or kind != "single":
-            return None
-        scales = power_scales if not isinstance(power_scales, str) else _power_scales(r)
-        r["power_scales"] = list(scales)
-        return (r["name"], [seeds.child_seed(seed, "power", k) for k in range(power_seeds)], settings,
-                [float(sc) for sc in scales], [_scale_effects(eff, sc) for sc in scales], base, injection)
+        return _power_job(r, power_scales, power_seeds, seed, settings, base, injection)
 
     main, scans, n_done = {}, {}, [0]
 
@@ -465,7 +411,9 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
             if progress:
                 progress(n_done[0], None, x["name"])
 
-    # one pool for both phases: a session's power scan is queued as soon as its own result is in (no barrier)
+    # worker processes by fork: spawn would re-import the caller's __main__ (a Snakemake rule script cannot be
+    # re-imported); every worker seeds itself, so the result does not depend on the number of workers.
+    # One pool for both phases: a session's power scan is queued as soon as its own result is in (no barrier)
     if workers > 1:
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("fork")) as ex:
             # single-effect sessions first: their power scans (the longest jobs) then queue early
@@ -494,13 +442,97 @@ def run_proof(out_dir, n_seeds: int = 100, effects=None, seed: int = 1000, progr
                 scans[j[0]] = _power_worker(pj)
                 got(scans[j[0]])
     clear_shared_noise()
+    return assemble_proof(out_dir, names, main, scans, n_seeds, seed, injection, power_scales,
+                          total_s=time.perf_counter() - t0, workers=workers)
+
+
+def _check_injection(injection: str):
+    if injection not in ("physical", "registry"):
+        raise ValueError(f"injection: {injection!r}, 'physical' or 'registry'")
+
+
+def _one_thread_blas():
+    """One BLAS/OpenMP thread per process: the proof's parallelism is its processes (or jobs)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+def _session_job(name, n_seeds, seed, out_dir, settings, base, injection) -> tuple:
+    """The arguments of :func:`_proof_worker` for session ``name``: its ``n_seeds`` noise seeds
+    (``child_seed(seed, "noise", k)``), the proof magnitude (scale 1)."""
+    noise_seeds = [seeds.child_seed(seed, "noise", k) for k in range(n_seeds)]
+    return (name, noise_seeds, None if out_dir is None else str(out_dir), settings, 1.0, None, base, injection)
+
+
+def _power_job(r, power_scales, power_seeds, seed, settings, base, injection):
+    """The arguments of :func:`_power_worker` for the power scan of single-effect session result ``r`` (its
+    scales from the chi-square gain of ``r`` when ``power_scales`` is ``"auto"``), or None (no scan)."""
+    kind, eff, _ = PROOF_SESSIONS[r["name"]]
+    if not power_scales or kind != "single":
+        return None
+    scales = power_scales if not isinstance(power_scales, str) else _power_scales(r)
+    r["power_scales"] = list(scales)
+    return (r["name"], [seeds.child_seed(seed, "power", k) for k in range(power_seeds)], settings,
+            [float(sc) for sc in scales], [_scale_effects(eff, sc) for sc in scales], base, injection)
+
+
+def proof_session(name: str, out_dir, n_seeds: int, seed: int, settings=None, base: dict | None = None,
+                  injection: str = "physical") -> dict:
+    """One session of :func:`run_proof` on its own (the workflow's job per session): its end-to-end report into
+    ``out_dir/end_to_end/<name>/``, its residual figure into ``out_dir/figures/``; returns the session's result
+    (every seed's row, the Fisher bounds, wall times) for :func:`assemble_proof`."""
+    _check_injection(injection)
+    if name not in PROOF_SESSIONS:
+        raise ValueError(f"diagnosis.proof.sessions: unknown session {name!r}; known: {list(PROOF_SESSIONS)}")
+    _one_thread_blas()
+    _NOISE_KEEP[0] = False    # one session: no other session here to share its seeds' noise with (1.3 GB saved)
+    try:
+        return _proof_worker(_session_job(name, n_seeds, seed, Path(out_dir), settings, base, injection))
+    finally:
+        _NOISE_KEEP[0] = True
+        clear_shared_noise()
+
+
+def power_scan(r: dict, power_seeds: int, seed: int, settings=None, base: dict | None = None,
+               injection: str = "physical", power_scales="auto") -> list[dict]:
+    """The detection-power scan of session result ``r`` (of :func:`proof_session`) on its own (the workflow's job
+    per scan): one result per scale, empty when the session gets no scan."""
+    _check_injection(injection)
+    pj = _power_job(dict(r), power_scales, power_seeds, seed, settings, base, injection)
+    if pj is None:
+        return []
+    _one_thread_blas()
+    out = _power_worker(pj)
+    clear_shared_noise()
+    return out
+
+
+def write_part(obj, path) -> Path:
+    """A session's or scan's result as JSON for the gathering job: every number as Python holds it (NaN kept as
+    NaN, floats to the last bit), so that :func:`assemble_proof` gets the values the one-process run has."""
+    return write_json_atomic(obj, path, strict=False)
+
+
+def read_part(path):
+    """A result written by :func:`write_part`."""
+    return json.loads(Path(path).read_text())
+
+
+def assemble_proof(out_dir, names, main: dict, scans: dict, n_seeds: int, seed: int, injection: str,
+                   power_scales, total_s: float | None = None, workers=None) -> dict:
+    """The proof's tables from its sessions' results (``main``: name -> result of a session; ``scans``: name ->
+    results of its power scan): writes ``proof.json``, ``proof_rows.json``, ``timings.json``, ``proof.csv`` and
+    ``proof.md`` into ``out_dir`` and returns the proof (with ``_results``, ``_timings`` for the caller)."""
+    out_dir = Path(out_dir)
     results = [main[nm] for nm in names]
     summary = [_summarise(r) for r in results]
     presults = [x for nm in names for x in scans.get(nm, [])]
     power = {}
     if power_scales:
         power = _power_table(results + presults, names)
-    timings = {"total_s": time.perf_counter() - t0, "workers": workers,
+    if total_s is None:   # gathered from separate jobs: the sum of their compute times
+        total_s = float(sum(r["t_total_s"] for r in results + presults))
+    timings = {"total_s": total_s, "workers": workers,
                "sessions": {r["name"] + ("" if r["scale"] == 1.0 else f"@{r['scale']:g}"):
                             {"build_s": r["t_build_s"], "total_s": r["t_total_s"],
                              "seconds_per_seed": float(np.mean([x["elapsed_s"] for x in r["rows"]])) if r["rows"]

@@ -27,6 +27,7 @@ experiment that would make it testable. Units: the registry's (ug/g^2, ug/g^3, p
 """
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -439,15 +440,8 @@ def real_proof_stage(out_dir, config_dir, settings=None, reps: int = 10, n_injec
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    out_dir = Path(out_dir)
-    paths = sorted(Path(config_dir).glob("*.yaml"))
-    if recordings:
-        unknown = sorted(set(recordings) - {p.stem for p in paths})
-        if unknown:
-            raise ValueError(f"diagnosis.real_proof.recordings: unknown {unknown}; known: {[p.stem for p in paths]}")
-        paths = [p for p in paths if p.stem in set(recordings)]
-    st = {**DEFAULT_SETTINGS, **(settings or {})}
-    jobs = [(str(p), st, reps, n_inject, n_out, seed, factor, tuple(axes)) for p in paths]
+    paths = recording_settings(config_dir, recordings)
+    jobs = [_job(p, settings, reps, n_inject, n_out, seed, factor, axes) for p in paths]
     bar = Progress(len(jobs), "real recordings (limits + proof)", every_s=0.0)
     results = []
     if workers > 1:
@@ -459,6 +453,41 @@ def real_proof_stage(out_dir, config_dir, settings=None, reps: int = 10, n_injec
         for j in jobs:
             results.append(_one_recording(j))
             bar(len(results), extra=results[-1]["recording"])
+    return real_proof_products(out_dir, results, reps=reps, n_inject=n_inject, n_out=n_out, seed=seed, factor=factor,
+                               metrics_path=metrics_path, enforce=enforce, log=log)
+
+
+def recording_settings(config_dir, recordings=None) -> list[Path]:
+    """The import settings (``config_dir/*.yaml``, sorted by name) the proof runs on: all, or the names in
+    ``recordings`` (an unknown name is refused, naming the known ones)."""
+    paths = sorted(Path(config_dir).glob("*.yaml"))
+    if recordings:
+        unknown = sorted(set(recordings) - {p.stem for p in paths})
+        if unknown:
+            raise ValueError(f"diagnosis.real_proof.recordings: unknown {unknown}; known: {[p.stem for p in paths]}")
+        paths = [p for p in paths if p.stem in set(recordings)]
+    return paths
+
+
+def _job(settings_path, settings, reps, n_inject, n_out, seed, factor, axes) -> tuple:
+    return (str(settings_path), {**DEFAULT_SETTINGS, **(settings or {})}, reps, n_inject, n_out, seed, factor,
+            tuple(axes))
+
+
+def real_proof_recording(settings_path, settings=None, reps: int = 10, n_inject: int = 100, n_out: int = 10,
+                         seed: int = 0, factor: float = 2.0, axes=AXES) -> dict:
+    """Limits and proof on one recording (import settings ``settings_path``) on its own: the workflow's job per
+    recording, gathered by :func:`real_proof_products`; the recording seeds itself by its name, so the result is
+    the one :func:`real_proof_stage` has for it."""
+    return _one_recording(_job(settings_path, settings, reps, n_inject, n_out, seed, factor, axes))
+
+
+def real_proof_products(out_dir, results: list, reps: int = 10, n_inject: int = 100, n_out: int = 10, seed: int = 0,
+                        factor: float = 2.0, metrics_path=None, enforce: bool = True, log=print) -> dict:
+    """The stage's files from every recording's result (in the order of :func:`recording_settings`):
+    ``real_proof.json``, ``limits.csv``, ``real_proof.md``, ``limits.png`` and the metrics; exit 3
+    (:class:`ResultCheckError`) when an acceptance point fails on a usable recording and ``enforce``."""
+    out_dir = Path(out_dir)
     out = {"format": "calib-real-proof-1", "seed": seed, "reps_per_magnitude": reps, "n_inject": n_inject,
            "n_out": n_out, "factor_of_limit": factor, "recordings": results}
     write_json_atomic(out, out_dir / "real_proof.json")
@@ -476,6 +505,34 @@ def real_proof_stage(out_dir, config_dir, settings=None, reps: int = 10, n_injec
                                file=out_dir / "real_proof.md", field="diagnosis.real_proof",
                                fix="read real_proof.md; a failed acceptance point is a defect of the method")
     return out
+
+
+def real_proof_gather(out_dir, config_dir, parts, recordings=None, reps: int = 10, n_inject: int = 100,
+                      n_out: int = 10, seed: int = 0, factor: float = 2.0, metrics_path=None, enforce: bool = True,
+                      log=print) -> dict:
+    """The stage's files from its recordings run as separate jobs (:func:`real_proof_recording`, one part file
+    each, :func:`write_part`): the same files as :func:`real_proof_stage`, the recordings in its order."""
+    names = [p.stem for p in recording_settings(config_dir, recordings)]
+    got = {}
+    for path in parts:
+        r = read_part(path)
+        got[r["recording"]] = r
+    missing = [nm for nm in names if nm not in got]
+    if missing:
+        raise ValueError(f"diagnosis.real_proof: no result for recording(s) {missing}")
+    log(f"real-recording proof: {len(names)} recordings gathered from their jobs")
+    return real_proof_products(out_dir, [got[nm] for nm in names], reps=reps, n_inject=n_inject, n_out=n_out,
+                               seed=seed, factor=factor, metrics_path=metrics_path, enforce=enforce, log=log)
+
+
+def write_part(result: dict, path) -> Path:
+    """One recording's result as JSON for the gathering job, every number as Python holds it (NaN kept)."""
+    return write_json_atomic(result, path, strict=False)
+
+
+def read_part(path) -> dict:
+    """A result written by :func:`write_part`."""
+    return json.loads(Path(path).read_text())
 
 
 def limits_csv(results) -> str:
