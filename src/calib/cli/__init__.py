@@ -264,7 +264,6 @@ def cmd_navigate(a):
         input_file(a.calibration, "calibration file")
     _output_file(a.out, "navigation output")
     input_file(a.recording, "recording")
-    recording.require_sensors(recording.read_header(a.recording))   # a partial record: the missing triad named
     # the recording is checked sample by sample once (reuse_validation: the navigation's load does not read it again)
     with recording.reuse_validation():
         # what needs no sample first: a calibration file of the wrong kind, a wrong pairing of units and calibration

@@ -14,7 +14,7 @@ numbers are what the declared units say. Here, one pass over the samples:
   the reverse, rates declared as increments or the reverse, raw counts declared as a physical unit, or
   physical data declared as counts.
 
-A triad whose every sample is the same value is refused first as what it is, a placeholder and not a
+A recorded triad whose every sample is the same value is refused first as what it is, a placeholder and not a
 measurement (a partial record leaves the absent triad out instead: ``absent_sensors``); the triad a partial record
 does not hold is not judged. Count recordings carry no physical scale, so only the last mistake is looked for
 there. The result checks
@@ -233,8 +233,13 @@ def _judge(c: RecordingCheck) -> Plausibility:
         res.warnings.append(f"{path}: {field_}: {message}")
 
     blocks_a, blocks_g, integer_accel = c.blocks_a, c.blocks_g, c.integer_accel
-    for sensor, first in c.first.items():   # a constant triad is a placeholder: named before any unit diagnosis
-        if first is not None and c.constant[sensor] and c.n_seen > 1:
+    # a recorded triad whose samples are all equal is a placeholder (a sensor's noise or quantization always moves
+    # them; a noise-free synthetic session may be constant): named before any unit diagnosis
+    recorded = str(h.attrs.get("source", "")) == "recorded"
+    placeholder = set()
+    for sensor, first in c.first.items():
+        if recorded and first is not None and c.constant[sensor] and c.n_seen > 1:
+            placeholder.add(sensor)
             refuse(sensor, f"every one of the {c.n_seen} samples is ({', '.join(f'{v:g}' for v in first)}): a constant "
                    "placeholder, not a measurement", f"if the logger recorded no {sensor}, leave '{sensor}' out of the "
                    "import settings (a partial record, declared absent: calib validate, noise and, with the "
@@ -261,7 +266,7 @@ def _judge(c: RecordingCheck) -> Plausibility:
         a_norm = float(np.median(np.linalg.norm(am[quiet], axis=1)))
         if fa is not None:
             _accel_physical(refuse, res, h, a_norm, fa)
-        elif not integer_accel and not c.constant.get("accel", True):
+        elif not integer_accel and "accel" in h.sensors and "accel" not in placeholder:
             _accel_counts(refuse, h, a_norm, ra)
         if fg is not None:
             mags = np.linalg.norm(gm[quiet], axis=1)

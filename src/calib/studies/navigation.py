@@ -13,7 +13,7 @@ from calib.signal import plausibility
 from calib.nav import navigation
 from calib.io.netcdf import write_netcdf
 from calib.core.triad import TriadModel
-from calib.io.recording import read_header
+from calib.io.recording import read_header, require_sensors
 from calib.core.progress import Progress
 from calib.io.atomic import write_text
 
@@ -119,6 +119,7 @@ def check_navigation_inputs(recording_path, calibration_nc):
     recording's samples. Returns ``(header, calibration or None)``, for :func:`navigate_file` (``inputs=``)."""
     cal = load_calibration(calibration_nc) if calibration_nc else None
     h = read_header(recording_path)
+    require_sensors(h)   # a partial record (one triad): the navigation needs both, the missing one named
     navigation.check_units(h, cal)
     return h, cal
 
