@@ -39,13 +39,13 @@ from calib.fieldcal.results import (
 # =========================================================================== recording-level workflow
 
 
-def _units_of(ds, var):
 #: what an accelerometer-only record's field calibration says of the gyro part (a note of the result, logged)
 NO_GYRO_NOTE = ("accelerometer only: the recording holds no gyroscope (absent_sensors), so the accelerometer is "
                 "calibrated from its static poses and the gyro calibration and the rotation check of the gyro's "
                 "units are skipped")
 
 
+def _units_of(ds, var):
     units = ds[var].attrs.get("units")
     kind = ds[var].attrs.get("sample_kind", "rate")
     if units == "count":
@@ -131,9 +131,9 @@ def clock_steps(ds, src="dataset"):
 
 def _units_check(settings, gyr_in, gyr_units_in, accel_dirs, iv, dts, fs, ds, src, force, notes):
     """The rotation check of the gyro's units and the rate (:mod:`calib.fieldcal.units_check`), as a dict."""
-    if not settings.get("units_check", True):
     if gyr_in is None:
         return UnitsCheck("not checked", "the recording holds no gyroscope (absent_sensors)").as_dict()
+    if not settings.get("units_check", True):
         return UnitsCheck("disabled", "settings units_check: false").as_dict()
     if not (settings.get("gyro") or {}).get("enabled", True):
         return UnitsCheck("not checked", "gyro.enabled: false").as_dict()
@@ -203,9 +203,9 @@ def _norm(inp: _Inputs, det_cfg: dict, notes: list, metrics: dict, x0=None):
         metrics["imu_tk_search"] = [[kk, n, c, r] for kk, n, c, r in table]
         init_span = (0, int(cfg["init_samples"]) + 1)
     else:
-        d = detect.detect_static(acc_in, gyr_in, fs, **det_cfg)
         if gyr_in is None:   # an accelerometer-only record: the accel criterion alone
             det_cfg["use_gyro"] = False
+        d = detect.detect_static(acc_in, gyr_in, fs, **det_cfg)
         iv = d.intervals
         if acc_units_in != "count":
             units_check = _units_check(settings, gyr_in, gyr_units_in, acc_in, iv, dts_clock, fs, ds, src,
@@ -435,12 +435,12 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None, *, force: bool 
     else:
         g_src = "settings" if settings.get("gravity_m_s2") is not None else "recording attribute gravity_m_s2"
     g = float(g)
-    au, af, ak = _units_of(ds, "accel")
     if "accel" not in ds:
         raise FieldCalError(f"{src}: variable 'accel': the recording holds gyroscopes only (absent_sensors); the "
                             "field calibration needs the accelerometer (the gravity norm at rest defines the poses) "
                             "-- fix: give a recording with the accelerometer; a gyro-only static record gives its "
                             "noise terms with calib noise")
+    au, af, ak = _units_of(ds, "accel")
     acc_in = np.asarray(ds["accel"].values, dtype=np.float64) * af
     if ak == "increment":
         acc_in = acc_in / dt_nom
@@ -466,10 +466,10 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None, *, force: bool 
         method = "ferraris" if len(statics) == 6 and len(turns) == 3 and not no_gyro else "norm"
     gset = settings.get("gyro") or {}
     notes = [f"gravity {g:.6g} m s-2 from {g_src}"]
-    metrics = {}
     if no_gyro:
         notes.append(NO_GYRO_NOTE)
         log.warning("%s: %s", src, NO_GYRO_NOTE)
+    metrics = {}
     sensor = str(ds.attrs.get("sensor", ""))
 
     if method == "ferraris":

@@ -386,9 +386,9 @@ def apply_triad(raw, tri):
 
 
 def finish(settings, fmt, path, accel, gyro, fs, *, time=None, sources=(), segments=None, segment_index=None,
+            temperature=None, extra=None):
     """The ``calib-recording-1`` dataset of the imported samples after the unit checks; ``accel`` or ``gyro``
     None: a partial record (that triad not declared in the settings; written as declared absent)."""
-            temperature=None, extra=None):
     lat, h, g = site_attrs(settings)
     ta = triad_settings(settings, "accel") if accel is not None else {"units": None, "kind": None}
     tg = triad_settings(settings, "gyro") if gyro is not None else {"units": None, "kind": None}
