@@ -4,6 +4,8 @@ holds allows, and one that needs the other triad names it; a constant placeholde
 a unit mistake."""
 from __future__ import annotations
 
+import json
+
 import netCDF4
 import numpy as np
 import pytest
@@ -97,6 +99,10 @@ def test_commands_on_a_partial_record(tmp_path, capsys, which):
     assert cli.main(["validate", str(path)]) == 0
     out = capsys.readouterr().out
     assert f"no {other} (partial record" in out and "plausible" in out
+    assert cli.main(["noise", str(path), "--out", str(tmp_path / "noise"), "--bootstrap", "20"]) == 0
+    rep = json.loads((tmp_path / "noise" / "noise.json").read_text())
+    assert set(rep["sensors"]) == {which} and any(f"no {other} in the record" in n for n in rep["notes"])
+    capsys.readouterr()
     for argv in (["diagnose", str(path), "--out", str(tmp_path / "diag")],
                  ["navigate", str(path), "--out", str(tmp_path / "nav.nc")]):
         code = cli.main(argv)

@@ -510,7 +510,8 @@ def report_markdown(results: dict, source: str, kalibr: dict | None = None, note
     lines += [f"Static record: {r.n_samples} samples at {r.fs:.9g} Hz ({r.n_samples / r.fs / 3600.0:.3f} h); "
               f"overlapping Allan deviation at {len(r.tau)} octave-spaced taus {r.tau[0]:.3g}..{r.tau[-1]:.4g} s; "
               f"{100 * any_r.confidence:g} % intervals by parametric bootstrap ({any_r.n_boot} replicates, seed "
-              f"{any_r.seed}; basic interval on the log scale). Model (per axis):", "",
+              f"{any_r.seed}; basic interval on the log scale; a resolved term's value is the bias-corrected estimate "
+              "at its centre). Model (per axis):", "",
               "    AVAR(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3", "", "Terms:", ""]
     lines += [f"* **{t}**: {DEFINITIONS[t]}" for t in TERMS]
     lines += ["", "N and K are always fitted; Q and B only where they clearly improve the fit. A term marked "
