@@ -76,7 +76,8 @@ def test_accel_only_mat_record_through_import_validate_fieldcal(tmp_path, capsys
     scipy.io.savemat(tmp_path / "acc12.mat", {"imu": {"acc": raw}})
     settings = import_settings(tmp_path, "acc12")
     rec, out = tmp_path / "acc12.nc", tmp_path / "cal.nc"
-    assert run(capsys, "import", settings, rec)[0] == 0
+    code, _, err = run(capsys, "import", settings, rec)
+    assert code == 0 and "a partial record: accelerometers only" in err
     code, text, err = run(capsys, "validate", rec)
     assert code == 0, err
     assert "no gyro (partial record" in text

@@ -412,6 +412,11 @@ def finish(settings, fmt, path, accel, gyro, fs, *, time=None, sources=(), segme
             attrs[key] = str(settings[key])
     if extra:
         attrs.update(extra)
+    if accel is None or gyro is None:   # said by calib import: a partial record, declared as such
+        held = "accelerometers" if gyro is None else "gyroscopes"
+        absent = "gyro" if gyro is None else "accel"
+        attrs.setdefault("import_summary", f"a partial record: {held} only ('{absent}' not in the settings, "
+                                           f"declared absent_sensors = {absent!r})")
     return recording.make_dataset(
         accel, gyro, sample_rate_hz=fs, latitude_deg=lat, height_m=h, gravity_m_s2=g,
         accel_units=ta["units"], gyro_units=tg["units"], accel_kind=ta["kind"], gyro_kind=tg["kind"],
