@@ -23,10 +23,16 @@ def import_settings():
     return importers.load_settings(config["recording"]["import"], data_root=config.get("data_root"))
 
 
+def calibrates(rec) -> bool:
+    """A real recording is field-calibrated unless its config says ``fieldcal: false`` (a record without static
+    poses, e.g. a long static one for the drift study); no ``fieldcal:`` key means the default settings."""
+    return rec.get("fieldcal", {}) is not False
+
+
 def all_targets():
     if config.get("recording"):
         rec = config["recording"]
-        t = [f"{R}/calibration/fieldcal.json"] if "fieldcal" in rec else []
+        t = [f"{R}/calibration/fieldcal.json"] if calibrates(rec) else []
         t += [f"{R}/drift/real_drift.json"] if "drift" in rec else []
         return t + ([f"{R}/diagnosis/report.json"] if rec.get("diagnose", True) else [])
     t = [
@@ -69,7 +75,7 @@ def diagnosis_input(wildcards):
     rec = config.get("recording")
     if rec:
         out = {"recording": f"{R}/data/recording.nc"}
-        if "fieldcal" in rec:
+        if calibrates(rec):
             out["fieldcal"] = f"{R}/calibration/fieldcal.nc"
         return out
     # the synthetic unit's long static record: the measured slow noise of the adequacy tests

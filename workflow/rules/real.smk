@@ -26,7 +26,7 @@ rule fieldcal:
         fig=report(f"{R}/calibration/static_detection.png", category="5 Real recordings", caption="../report/detection.rst"),
         metrics=f"{R}/calibration/fieldcal.metrics.json",
     params:
-        settings=lambda w: config["recording"].get("fieldcal", {}),
+        settings=lambda w: config["recording"].get("fieldcal") or {},   # no key: the default settings
     log:
         f"{R}/logs/fieldcal.log",
     benchmark:

@@ -239,12 +239,14 @@ def cmd_fieldcal(a):
     from calib.io.netcdf import write_netcdf
     from calib.signal import plausibility
 
-    settings = None
+    settings, imported = None, None
     if a.settings:
         settings = load_mapping(a.settings)
         if "format" in settings:  # an import-settings file: use its optional 'fieldcal:' section
-            settings = settings.get("fieldcal")
+            imported, settings = settings, settings.get("fieldcal")
     h, _ = _recording(a.recording, a.force, need=("accel",))   # accel-only: the gyro part is skipped with a note
+    if imported is not None:
+        _same_rate(imported, h, a.settings, a.recording)
     if a.out:
         _output_file(a.out, "calibration")
     res = fieldcal.fieldcal_recording(a.recording, settings, force=a.force)
@@ -252,6 +254,34 @@ def cmd_fieldcal(a):
     if a.out:
         write_netcdf(res.to_dataset(), a.out)
     plausibility.check_fieldcal_result(res, h.accel_units == "count", h.gyro_units == "count", a.out or a.recording)
+
+
+def _same_rate(imported: dict, h, settings_path, recording_path) -> None:
+    """An import-settings file given to ``calib fieldcal --settings`` declares the rate the recording was meant to be
+    imported with; the recording's own ``sample_rate_hz`` is what every step uses. Two different rates are refused
+    (exit 2) rather than one silently ignored. A recording whose rate the importer fitted to its timestamps
+    (``clock_rate_hz``) agrees with the nominal rate it was declared with as the import checked it
+    (:func:`calib.ingest.common.time_clock`)."""
+    from calib.ingest.common import CLOCK_REL_FLOOR, CLOCK_SIGMAS
+
+    rate = imported.get("sample_rate_hz")
+    if rate is None:
+        return
+    try:
+        rate = float(rate)
+    except (TypeError, ValueError):
+        raise InputError(f"sample_rate_hz {rate!r} is not a number", file=settings_path,
+                         field="sample_rate_hz") from None
+    fs = float(h.sample_rate_hz)
+    tol = 1e-9 * fs
+    if "clock_rate_hz" in h.attrs:
+        tol = max(CLOCK_SIGMAS * float(h.attrs.get("clock_rate_std_hz", 0.0)), CLOCK_REL_FLOOR * fs)
+    if not abs(rate - fs) <= tol:
+        raise InputError(f"declares {rate:g} Hz but the recording {recording_path} declares {h.sample_rate_hz:g} Hz; "
+                         "the recording's rate is the one every step would use", file=settings_path,
+                         field="sample_rate_hz",
+                         fix=f"re-import the recording with these settings (calib import {settings_path} OUT.nc), or "
+                             f"correct sample_rate_hz in {settings_path}")
 
 
 def cmd_navigate(a):
@@ -309,27 +339,60 @@ def _diagnose(a):
     if settings:   # names, types and ranges, refused naming the file and the setting
         settings_of(settings, file=a.settings)
 
-    try:
-        _recording(a.recording, a.force)
-    except InputError as exc:
-        _diagnose_refusal(a.recording, settings, a.out, exc)
-        raise
+    # a refused input (exit 2) writes nothing: no report beside or instead of an earlier one
+    h, _ = _recording(a.recording, a.force)
     if a.noise_record:   # a long static record of the same unit: the measured slow noise of the adequacy tests
         _recording(a.noise_record, a.force, "noise record")
         settings = {**(settings or {}), "noise_record": str(a.noise_record)}
-    intervals = None
+    intervals, source = None, ""
     if a.fieldcal:   # the static intervals the field calibration used: one answer per file
-        intervals = _fieldcal_intervals(a.fieldcal)
+        intervals, source = _fieldcal_intervals(a.fieldcal), str(a.fieldcal)
+    elif not _has_segment_table(a.recording):
+        intervals, source, failed = _field_calibration_intervals(a, h)
+        if failed is not None:   # the field calibration's own exit-3 outcome: the diagnosis cannot be run on it
+            from calib.diagnosis import DEFAULT_SETTINGS, inconclusive_report
+            from calib.diagnosis.run import write_report
+
+            rep = inconclusive_report(a.recording, {**DEFAULT_SETTINGS, **(settings or {})}, failed.message,
+                                      failed.fix or "")
+            write_report(rep, a.out)
+            emit(json.dumps({"verdict": rep["verdict"]}, indent=2))
+            return 3
     with output_set():   # the report, its figures and its detection limits: all of them or none
-        rep = diagnose(a.recording, settings, out_dir=a.out, intervals=intervals,
-                       intervals_source=str(a.fieldcal or ""))
+        rep = diagnose(a.recording, settings, out_dir=a.out, intervals=intervals, intervals_source=source)
         if a.limits:   # detection limits on this recording's own noise, added to the report
             from calib.studies import real_proof
 
             rep = real_proof.limits_into_report(a.recording, a.out, rep, settings, reps=a.limits_reps,
-                                                intervals=intervals, intervals_source=str(a.fieldcal or ""))
+                                                intervals=intervals, intervals_source=source)
     emit(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
     return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 3)   # exit code: 3 inconclusive
+
+
+def _has_segment_table(path) -> bool:
+    """Whether the recording carries its own segment table (``segment_index``): a turntable session's or a labelled
+    one's; without one the static poses must be detected."""
+    import netCDF4
+
+    with netCDF4.Dataset(path) as nc:
+        return "segment_index" in nc.variables
+
+
+def _field_calibration_intervals(a, h):
+    """What ``calib fieldcal RECORDING`` does with its default settings, before any verdict of the diagnosis: the
+    same unit, rate and plausibility checks (a refusal raises, exit 2, nothing written), the same default static
+    detection, the same result checks. Returns ``(intervals, source, None)``, or ``(None, "", ResultCheckError)``
+    when the field calibration's result fails its checks (``calib fieldcal`` exits 3 on it)."""
+    from calib import fieldcal
+    from calib.signal import plausibility
+
+    try:
+        res = fieldcal.fieldcal_recording(a.recording, None, force=a.force)
+        plausibility.check_fieldcal_result(res, h.accel_units == "count", h.gyro_units == "count", a.recording)
+    except ResultCheckError as exc:
+        return None, "", exc
+    return res.intervals, ("calib fieldcal's default static detection (the intervals 'calib fieldcal RECORDING' "
+                           "uses; --fieldcal result.nc gives those of other settings)"), None
 
 
 def _fieldcal_intervals(path):
@@ -351,19 +414,6 @@ def _fieldcal_intervals(path):
         raise InputError("is not a field calibration with static_intervals(interval, bound)", file=path,
                          field="static_intervals", fix=fix)
     return iv
-
-
-def _diagnose_refusal(path, settings, out_dir, exc):
-    """A refused input is recorded as an 'inconclusive' report, but only in a folder without an earlier report:
-    a failed run never replaces a previous report."""
-    from calib.diagnosis import DEFAULT_SETTINGS, inconclusive_report
-    from calib.diagnosis.run import write_report
-
-    out = Path(out_dir)
-    if (out / "report.json").exists() or (out / "report.md").exists():
-        return
-    write_report(inconclusive_report(path, {**DEFAULT_SETTINGS, **(settings or {})},
-                                     f"cannot read the recording: {exc}", "give a valid calib-recording-1 file"), out)
 
 
 # --------------------------------------------------------------------------- dispatch: one exit-code contract

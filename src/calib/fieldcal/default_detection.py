@@ -636,14 +636,22 @@ def no_choice_error(cands: list, src: str, ranking: Ranking, protocol: Protocol,
              f"{protocol.describe()})")
     few = most is None or most.n_poses < ranking.min_poses
     if few:
-        msg = (f"no default static-interval detection finds {ranking.min_poses} distinct static poses, the fewest the "
-               f"9-parameter accelerometer model needs: {tried}")
+        # the gravity norm gives one equation per distinct pose: the 9 parameters need at least 9 of them
+        need = ("the fewest the 9-parameter accelerometer model needs (one gravity-norm equation per pose)"
+                if ranking.min_poses >= NORM_PARAMETERS else
+                f"as fieldcal.min_intervals asks (the 9-parameter accelerometer model needs {NORM_PARAMETERS}, one "
+                "gravity-norm equation per pose; with fewer, what the poses leave undetermined is held at nominal)")
+        msg = f"no default static-interval detection finds {ranking.min_poses} distinct static poses, {need}: {tried}"
     else:
         msg = f"no default static-interval detection gives a plausible accelerometer calibration: {tried}"
     if most is not None:
-        msg += (f"; the most poses: {most.label()} with {len(most.intervals)} intervals, {most.n_poses} distinct "
-                f"poses (at least {ranking.min_poses} needed)")
-        probs = [p for p in most.problems + most.implausible if "distinct poses" not in p]
+        # distinct poses are counted on a candidate's accel fit, which runs only with enough intervals
+        poses = (f"{most.n_poses} distinct poses" if most.fitted else
+                 "distinct poses not counted (too few intervals for the accel fit that counts them)")
+        msg += (f"; the most poses: {most.label()} with {len(most.intervals)} intervals, {poses} (at least "
+                f"{ranking.min_poses} needed)")
+        probs = [p for p in most.problems + most.implausible
+                 if "distinct poses" not in p and not (not most.fitted and "static intervals, at least" in p)]
         if probs:
             msg += f", {probs[0]}"
     for c, reason in attempts:

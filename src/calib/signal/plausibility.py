@@ -5,7 +5,8 @@ gaps and consistent with ``sample_rate_hz``, no NaN or masked sample. What it ca
 numbers are what the declared units say. Here, one pass over the samples:
 
 * **single absurd samples**: a specific force above :data:`ABSURD_ACCEL_G` g or a rate above
-  :data:`ABSURD_GYRO_DEG_S` deg/s in the declared units, named by sample index;
+  :data:`ABSURD_GYRO_DEG_S` deg/s in the declared units, named by sample index; for accelerometer counts (no
+  physical scale) a sample above :data:`ABSURD_ACCEL_G` times the recording's own static norm (1 g in counts);
 * **static magnitudes**, on the quiet blocks of :data:`BLOCK_S` seconds (accel and gyro scatter both at most
   twice their median over the recording): the accelerometer norm against local gravity (ratio within
   :data:`ACCEL_NORM_RATIO`) and the gyro magnitude against the Earth's rate (at most
@@ -179,6 +180,8 @@ class RecordingCheck:
         self.absurd = {"accel": _Absurd(ABSURD_ACCEL_G, "g", h.accel_units),
                        "gyro": _Absurd(ABSURD_GYRO_DEG_S, "deg/s", h.gyro_units)}
         self.integer_accel = True
+        #: accelerometer counts: a bound of every sample's squared magnitude (raw rate), judged against the static norm
+        self.count_bound = -np.inf
         self.n_seen = 0
         #: per triad held, its first sample and whether every sample so far equals it (a constant placeholder)
         self.first = {s: None for s in h.sensors}
@@ -202,6 +205,8 @@ class RecordingCheck:
                 if x is None:
                     continue
                 ss, end = blocks.add(t)   # (t's samples in the blocks completed now are overwritten)
+                if factor is None and sensor == "accel":   # the samples of blocks completed later bound it then
+                    self.count_bound = max(self.count_bound, ss)
                 if factor is not None:
                     self.absurd[sensor].add_bounded(ss, t[:, end:], per_unit, i0, end,
                                                     lambda x=x, factor=factor: _axes_first(x, factor))
@@ -277,6 +282,8 @@ def _judge(c: RecordingCheck) -> Plausibility:
     for sensor, ab in absurd.items():
         if sensor in h.sensors:
             ab.judge(refuse, sensor)
+    if fa is None and "accel" in h.sensors and quiet.any():
+        _count_spikes(refuse, c, float(np.median(np.linalg.norm(am[quiet], axis=1))))
     if fg is not None:
         _table_rotation_check(refuse, res, path, h, fg)
     return res
@@ -375,6 +382,33 @@ class _Absurd:
             refuse(sensor, f"sample {self.first}: magnitude {self.value:.4g} {self.unit} exceeds {self.limit:g} "
                    f"{self.unit} ({self.count} such sample(s)): a spike, or not {self.declared!r}",
                    f"remove the spike at the source, or declare the right units for {sensor}")
+
+
+def _count_spikes(refuse, c: RecordingCheck, a_norm: float) -> None:
+    """Accelerometer counts carry no physical scale, but their static norm is 1 g in counts: a sample above
+    :data:`ABSURD_ACCEL_G` times it is a spike, not a reading, refused by index before any fit. The block sums
+    bound every sample (the record's last incomplete block is looked at here); only when the bound is above the
+    limit is the file read again to name the first such sample."""
+    h, limit = c.h, ABSURD_ACCEL_G * a_norm
+    rest = c.blocks_a.rest
+    bound = max(c.count_bound, float(_squared_magnitude(rest).max()) if rest is not None and rest.size else -np.inf)
+    if not (limit > 0 and bound > limit ** 2):
+        return
+    first, value, count = None, None, 0
+    for i0, acc, _ in recording.iter_raw_chunks(c.path, h):
+        with np.errstate(over="ignore", invalid="ignore"):
+            mag = np.sqrt(_squared_magnitude(_axes_first(acc, c.ra)))
+        bad = ~(mag <= limit)
+        if bad.any():
+            if first is None:
+                i = int(np.argmax(bad))
+                first, value = i0 + i, float(mag[i])
+            count += int(bad.sum())
+    if first is not None:
+        unit = "count s-1" if h.accel_kind == "increment" else "count"
+        refuse("accel", f"sample {first}: magnitude {value:.4g} {unit} is more than {ABSURD_ACCEL_G:g} times the static "
+               f"norm of the recording ({a_norm:.4g} {unit}, 1 g) ({count} such sample(s)): a spike, not a reading",
+               "remove or repair the sample at the source and import the recording again")
 
 
 def _likely(ratio, candidates):
