@@ -209,6 +209,8 @@ def cmd_validate(a):
                        for s, k, u in (("accel", h.accel_kind, h.accel_units), ("gyro", h.gyro_kind, h.gyro_units)))
     emit(f"{a.recording}: valid calib-recording-1, {h.n_samples} samples at {h.sample_rate_hz} Hz "
           f"({h.duration_s / 3600:.3f} h), latitude {h.latitude_deg} deg; {triads}")
+    if h.clock_summary:   # the time coordinate's fitted clock: jitter, gaps, dropped samples
+        emit(f"{a.recording}: clock: {h.clock_summary}")
     emit(f"{a.recording}: plausible: {pl.describe()}")
 
 

@@ -11,7 +11,8 @@ from types import SimpleNamespace
 import numpy as np
 import xarray as xr
 
-from calib.signal import clock, detect, plausibility
+from calib.core import clock
+from calib.signal import detect, plausibility
 from calib.core import earth
 from calib.core.errors import ResultCheckError
 from calib.io import recording
@@ -118,7 +119,7 @@ def _labelled(ds):
 
 def clock_steps(ds, src="dataset"):
     """Clock periods from each sample to the next (n - 1,) of the recording's time coordinate
-    (:func:`calib.signal.clock.fit_clock`: 1, or k over k - 1 dropped samples), or None when every step is one
+    (:func:`calib.core.clock.fit_clock`: 1, or k over k - 1 dropped samples), or None when every step is one
     period (or there is no time coordinate)."""
     if "time" not in ds.coords:
         return None

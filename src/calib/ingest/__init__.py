@@ -20,7 +20,7 @@ turns come from the settings (or the file, where it says so). What *can* be chec
 * structure: every row complete (a short last row means a truncated file), no NaN/Inf, header names as
   declared, time strictly increasing, the two IMU-TK files sharing their timestamps row for row;
 * rate: with a time column the recording's ``sample_rate_hz`` is the sample clock fitted to it
-  (:func:`calib.signal.clock.fit_clock`: least-squares line of time against the clock index, robust to
+  (:func:`calib.core.clock.fit_clock`: least-squares line of time against the clock index, robust to
   burst arrival, dropped samples counted; the median step is not the rate of a bursty logger), stored with
   its uncertainty, jitter and dropped-sample count as ``clock_*`` attributes; a declared ``sample_rate_hz``
   must agree within max(5 sigma, 1e-3 relative). Without a time column the declared rate is the rate.

@@ -11,14 +11,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calib.core import earth
+from calib.core import clock, dropouts, earth
 from calib.io import recording
-from calib.signal import clock
 from calib.signal.detect import moving_variance_norm, window_samples
 from calib.io.recording import RecordingError
 
 COMMON_KEYS = {"format", "latitude_deg", "height_m", "gravity_m_s2", "site_note", "sensor", "description",
                "data_dir", "accel", "gyro", "units_check_tolerance",
+               "start_s", "stop_s", "dropout_min_rows",   # the part of the file to import; see finish()
                "fieldcal"}   # the field calibration's settings may live in the same file (read by calib fieldcal)
 TRIAD_KEYS = {"units", "sample_kind", "columns", "scale", "sign", "approx_counts_per_g", "approx_zero_count",
               "approx_counts_per_deg_s"}
@@ -385,16 +385,88 @@ def apply_triad(raw, tri):
     return np.ascontiguousarray(raw, dtype=np.float64) * tri["factor"]
 
 
+def _window(settings, t_rel) -> tuple[int, int]:
+    """Rows ``[lo, hi)`` inside the settings' ``start_s <= t < stop_s`` (``t_rel``: seconds from the first row)."""
+    lo, hi = 0, len(t_rel)
+    if settings.get("start_s") is not None:
+        lo = int(np.searchsorted(t_rel, number_setting(settings, "start_s", settings["start_s"], positive=False)))
+    if settings.get("stop_s") is not None:
+        hi = int(np.searchsorted(t_rel, number_setting(settings, "stop_s", settings["stop_s"], positive=False)))
+    if hi - lo < 2:
+        raise serr(settings, "start_s" if settings.get("start_s") is not None else "stop_s",
+                   f"the window start_s..stop_s holds {max(hi - lo, 0)} of the {len(t_rel)} samples "
+                   f"({t_rel[-1]:.6g} s from the first sample to the last)", "widen start_s / stop_s")
+    return lo, hi
+
+
+def _cut(settings, path, accel, gyro, t_rel, window=True):
+    """The rows to import ``(lo, hi, notes)``: the settings' window (``start_s`` / ``stop_s``), then without the
+    dropouts and stuck runs at its ends (:mod:`calib.core.dropouts`, reported in ``notes``); a run inside is
+    refused, naming the windows either side."""
+    lo, hi = _window(settings, t_rel) if window else (0, len(t_rel))
+    min_run = settings.get("dropout_min_rows", dropouts.MIN_RUN)
+    if isinstance(min_run, bool) or not isinstance(min_run, int) or min_run < 0 or min_run == 1:
+        raise serr(settings, "dropout_min_rows", f"value {min_run!r}: a whole number of rows >= 2 (default "
+                   f"{dropouts.MIN_RUN}), or 0 to import runs of identical rows as they are")
+    runs = dropouts.find_runs({"accel": None if accel is None else accel[lo:hi],
+                               "gyro": None if gyro is None else gyro[lo:hi]}, min_run, offset=lo)
+    elo, ehi = dropouts.ends(runs, lo, hi)
+    stuck = dropouts.inside(runs, elo, ehi)
+    if elo >= ehi or stuck:
+        sensor, problem, fix = dropouts.refusal(stuck or runs, elo if stuck else lo, ehi if stuck else hi, t_rel,
+                                                min_run)
+        raise ImportDataError(path, sensor, problem + (" inside the recording" if stuck else " over the whole window"),
+                              fix)
+    notes = [f"{r.describe()} trimmed at the {'start' if r.start <= elo else 'end'}" for r in runs]
+    return elo, ehi, notes
+
+
 def finish(settings, fmt, path, accel, gyro, fs, *, time=None, sources=(), segments=None, segment_index=None,
-            temperature=None, extra=None):
+            temperature=None, extra=None, window=True):
     """The ``calib-recording-1`` dataset of the imported samples after the unit checks; ``accel`` or ``gyro``
-    None: a partial record (that triad not declared in the settings; written as declared absent)."""
+    None: a partial record (that triad not declared in the settings; written as declared absent).
+
+    The rows imported are the settings' window ``start_s <= t < stop_s`` (seconds from the first sample;
+    ``window`` False: the importer applied it), less the dropouts and stuck runs at its ends
+    (:func:`_cut`). With a time coordinate, its clock is fitted and judged (:func:`calib.core.clock.fit_clock`)
+    on the rows imported: a gap is refused, naming the windows either side; rate, jitter and dropped samples are
+    stored as ``clock_*`` attributes and said in ``import_summary``."""
     lat, h, g = site_attrs(settings)
     ta = triad_settings(settings, "accel") if accel is not None else {"units": None, "kind": None}
     tg = triad_settings(settings, "gyro") if gyro is not None else {"units": None, "kind": None}
     accel = apply_triad(accel, ta) if accel is not None else None
     gyro = apply_triad(gyro, tg) if gyro is not None else None
     n = len(accel if accel is not None else gyro)
+    if n >= 2:
+        t_rel = np.asarray(time, dtype=float) - float(time[0]) if time is not None else np.arange(n) / fs
+        lo, hi, trimmed = _cut(settings, path, accel, gyro, t_rel, window)
+        if (lo, hi) != (0, n):
+            accel = accel[lo:hi] if accel is not None else None
+            gyro = gyro[lo:hi] if gyro is not None else None
+            time = None if time is None else np.asarray(time)[lo:hi]
+            temperature = None if temperature is None else np.asarray(temperature)[lo:hi]
+            segment_index = None if segment_index is None else np.asarray(segment_index)[lo:hi]
+            n = hi - lo
+        summary = [] if not trimmed else [f"{len(trimmed)} dropout run(s) trimmed: " + "; ".join(trimmed)]
+        extra = dict(extra or {})
+        if trimmed:
+            extra["dropouts_trimmed"] = "; ".join(trimmed)
+        if "dropout_min_rows" in settings:   # the threshold the recording's validation uses too
+            extra["dropout_min_rows"] = int(settings["dropout_min_rows"])
+        if lo or hi != len(t_rel):
+            extra["imported_rows"] = f"{lo}..{hi - 1} of the file's 0..{len(t_rel) - 1}"
+        if time is not None:
+            clk = clock.fit_clock(time)
+            if clk.gaps:
+                problem, fix = clk.gap_refusal(offset_s=float(t_rel[lo]), first=lo)
+                raise ImportDataError(path, "time", problem, fix)
+            if (lo, hi) != (0, len(t_rel)):   # the rate of the rows imported (else the importer's, the same fit)
+                fs = clk.rate_hz
+            extra.update(clk.attrs())
+            summary.insert(0, f"clock: {clk.summary()}")
+        if summary:
+            extra["import_summary"] = "; ".join(([extra["import_summary"]] if extra.get("import_summary") else [])
+                                                + summary)
     if n < 2:
         raise ImportDataError(path, "time", f"only {n} samples", "import a longer recording")
     if accel is not None:
@@ -432,10 +504,10 @@ CLOCK_REL_FLOOR = 1e-3
 
 
 def time_clock(path, t, field, numbers=None, fs_declared=None, settings=None):
-    """Check a time column and fit its sample clock (:func:`calib.signal.clock.fit_clock`).
+    """Check a time column and fit its sample clock (:func:`calib.core.clock.fit_clock`).
 
     Returns ``(rate_hz, clock)``: the fitted clock's rate (the recording's ``sample_rate_hz``) and the
-    :class:`~calib.signal.clock.ClockFit`. A declared ``fs_declared`` is checked against the fitted rate with
+    :class:`~calib.core.clock.ClockFit`. A declared ``fs_declared`` is checked against the fitted rate with
     the tolerance max(:data:`CLOCK_SIGMAS` sigma, :data:`CLOCK_REL_FLOOR` relative)."""
     d = np.diff(t)
     if np.any(d <= 0):

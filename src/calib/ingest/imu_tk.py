@@ -25,7 +25,7 @@ def import_imu_tk(settings) -> xr.Dataset:
     """IMU-TK text pair: ``files: {accel: ..., gyro: ...}``, each row ``timestamp_s x y z`` (whitespace).
 
     The two files must hold the same timestamps row for row. Time is kept as in the files (seconds).
-    The rate is the least-squares clock of the timestamps (:func:`calib.signal.clock.fit_clock`; stored with
+    The rate is the least-squares clock of the timestamps (:func:`calib.core.clock.fit_clock`; stored with
     its uncertainty, jitter and dropped samples as ``clock_*`` attributes); ``sample_rate_hz`` (optional) is the
     nominal rate, checked against it (:func:`calib.ingest.common.time_clock`). Units/kind from ``accel``/``gyro`` (raw Xsens: count, rate).
     """

@@ -20,7 +20,7 @@ of ``header.frame_id`` (stored as the attribute ``ros_frame_id``; REP 103: x for
 the orientation and the covariances are not kept. A topic whose ``*_covariance[0]`` is -1 (REP 145: "this
 field is not provided") is refused. Time: ``header.stamp`` (or the bag's receive time) as nanoseconds, stored
 as seconds from the first sample (exact to the float64 rounding of that difference); the first stamp itself as
-``time_origin_unix_ns``. The rate is the least-squares clock of the stamps (:func:`calib.signal.clock.fit_clock`,
+``time_origin_unix_ns``. The rate is the least-squares clock of the stamps (:func:`calib.core.clock.fit_clock`,
 never the median step), stored with its uncertainty, the jitter and the dropped messages (``clock_*``
 attributes, and ``import_summary``, the line ``calib import`` prints). Stamps that are not strictly increasing
 are refused (fix: ``time_source: receive``, or repair the driver's stamps), and so is a gap (a pause longer than
@@ -59,7 +59,8 @@ from calib.ingest.common import (
 )
 
 #: the settings keys of this format (besides :data:`calib.ingest.common.COMMON_KEYS`)
-KEYS = {"file", "topic", "time_source", "temperature_topic", "sample_rate_hz", "start_s", "stop_s"}
+KEYS = {"file", "topic", "time_source", "temperature_topic", "sample_rate_hz"}   # start_s / stop_s: common keys,
+# applied here to the bag's messages (before the clock is fitted), not again by finish()
 
 IMU_TYPE = "sensor_msgs/msg/Imu"
 TEMPERATURE_TYPE = "sensor_msgs/msg/Temperature"
@@ -387,4 +388,4 @@ def import_rosbag(settings) -> xr.Dataset:
                   "body_frame": f"ROS frame {frame_id!r} of the messages (REP 103)"})
     extra.update(clk.attrs())
     return finish(settings, "rosbag", path, accel, gyro, fs, time=t, sources=_bag_files(path),
-                  temperature=temperature, extra=extra)
+                  temperature=temperature, extra=extra, window=False)   # start_s / stop_s applied above

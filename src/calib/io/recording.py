@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 import netCDF4
 import numpy as np
 
-from calib.core import earth
+from calib.core import clock, dropouts, earth
 from calib.core.errors import InputError
 from calib.io.atomic import atomic_path, utf8_name
 from calib.io.netcdf import (CF_UNITS, CF_VERSION, AtomicNetCDF, conventions, float_values, index_values,
@@ -118,6 +118,8 @@ class Header:
     gyro_kind: str
     gyro_units: str
     attrs: dict
+    #: the time coordinate's fitted clock in one line (rate, jitter, gaps, dropped samples); None without one
+    clock_summary: str | None = None
 
     @property
     def dt(self) -> float:
@@ -146,8 +148,6 @@ def unit_factor(units: str) -> float | None:
     return TO_SI.get(units)
 
 
-#: a step of the time coordinate longer than this many nominal sample periods is a gap, refused
-GAP_PERIODS = 1.5
 #: the declared ``sample_rate_hz`` must agree with the least-squares clock of the time coordinate to this
 CLOCK_REL_TOL = 0.01
 #: local gravity outside this range [m s-2] is not a value in m s-2 for a site on the Earth
@@ -199,32 +199,25 @@ def _open(path):
         raise _unreadable(path, exc) from exc
 
 
-def check_clock(path, t, fs: float) -> None:
-    """The time coordinate ``t`` against the nominal rate ``fs``: no step longer than :data:`GAP_PERIODS`
-    sample periods (a gap, named by its samples, time and size) unless it is near a whole multiple (<= 50) of the
-    period (dropped samples), and the least-squares clock (slope of ``t`` against the sample index advanced over
-    dropped samples, robust to jitter) within :data:`CLOCK_REL_TOL` of ``fs``."""
-    n = len(t)
-    d = np.diff(t)
-    period = 1.0 / fs
-    whole = np.rint(d / period)  # a step near a whole multiple k <= 50 of the period: k - 1 dropped samples
-    dropped = (whole >= 2) & (whole <= 50) & (np.abs(d / period - whole) <= 0.35)
-    gap = (d > GAP_PERIODS * period) & ~dropped
-    if gap.any():
-        i = int(np.argmax(gap))
-        raise RecordingError(path, "time", f"time gap of {d[i]:.6g} s ({d[i] / period:.3g} sample periods of "
-                             f"{period:.6g} s) between samples {i} and {i + 1} (t = {t[i]:.6f} s); "
-                             f"{int(gap.sum())} step(s) longer than {GAP_PERIODS} periods in all",
-                             "split the recording at the gap or fill it at the source (calib does not interpolate)")
-    k = np.concatenate([[0.0], np.cumsum(np.where(dropped, whole, 1.0))])
-    k -= k.mean()
-    slope = float(k @ (t - t.mean())) / float(k @ k)
-    fs_clock = 1.0 / slope
-    if abs(fs_clock / fs - 1.0) > CLOCK_REL_TOL:
+def check_clock(path, t, fs: float) -> clock.ClockFit:
+    """The time coordinate ``t`` judged by its fitted clock (:func:`calib.core.clock.fit_clock`, the one fit of
+    the importers too): jitter (stamps that leave the line and come back) is accepted and dropped samples
+    (whole periods) are counted; a gap (the stamps leave the line for good) is refused, naming it and the
+    windows either side that hold one clock each; the fitted rate must be within :data:`CLOCK_REL_TOL` of the
+    declared ``fs``. Returns the fit."""
+    try:
+        clk = clock.fit_clock(t)
+    except clock.ClockError as exc:
+        raise RecordingError(path, "time", str(exc)) from None
+    if clk.gaps:
+        problem, fix = clk.gap_refusal()
+        raise RecordingError(path, "time", problem, fix)
+    if abs(clk.rate_hz / fs - 1.0) > CLOCK_REL_TOL:
         raise RecordingError(path, "sample_rate_hz", f"declared {fs:.6g} Hz but the time coordinate gives "
-                             f"{fs_clock:.6g} Hz (least-squares clock over {n} samples; tolerance "
+                             f"{clk.rate_hz:.6g} Hz (least-squares clock over {len(t)} samples; tolerance "
                              f"{100 * CLOCK_REL_TOL:g} %)",
                              "correct sample_rate_hz or the units of the time coordinate")
+    return clk
 
 
 def read_header(path) -> Header:
@@ -326,8 +319,7 @@ def _header(path, nc) -> Header:
         raise RecordingError(path, "sample_rate_hz", f"value {fs} is not a positive rate")
     if not math.isfinite(t0):
         raise RecordingError(path, "t0_s", f"value {t0} is not finite")
-    if has_time:
-        check_clock(path, t, fs)
+    clock_summary = check_clock(path, t, fs).summary() if has_time else None
     g = _number(path, nc, "gravity_m_s2")
     if g is None:
         g = float(earth.normal_gravity(math.radians(lat), height))
@@ -337,7 +329,7 @@ def _header(path, nc) -> Header:
                              "give local gravity in m s-2, or leave it out for WGS-84 normal gravity")
     attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
     return Header(str(path), n, fs, t0, has_time, lat, height, g,
-                  kinds["accel"][0], kinds["accel"][1], kinds["gyro"][0], kinds["gyro"][1], attrs)
+                  kinds["accel"][0], kinds["accel"][1], kinds["gyro"][0], kinds["gyro"][1], attrs, clock_summary)
 
 
 def declared_absent(path, value) -> tuple:
@@ -514,16 +506,36 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
                     _check_finite(path, "temperature", float_values(tv, slice(i0, i0 + PER_SAMPLE_SLICE)), i0)
             else:
                 _check_finite(path, "temperature", float_values(tv))
+    # dropouts and stuck runs (calib.core.dropouts) in a recorded file (a noise-free synthetic one may repeat rows)
+    # (the threshold: the import's, stored as the attribute dropout_min_rows when its settings changed it)
+    min_run = int(h.attrs.get("dropout_min_rows", dropouts.MIN_RUN))
+    track = {v: dropouts.RunTracker(v, min_run) for v in SENSORS} if h.attrs.get("source") == "recorded" else {}
     for start, acc, gyr in iter_raw_chunks(path, h):
         for name, arr in (("accel", acc), ("gyro", gyr)):
             if arr is not None:   # (None: the triad a partial record declares absent)
                 _check_finite(path, name, arr, start)
                 _check_fill(path, name, arr, fills[name], start)
+                if track:
+                    track[name].add(arr)
         if on_chunk is not None:
             try:
                 on_chunk(start, acc, gyr)
             except Exception as exc:  # noqa: BLE001 - not the file's fault: validate raises it as itself
                 raise _OnChunkError() from exc
+    runs = sorted((r for t in track.values() for r in t.finish()), key=lambda r: r.start)
+    if runs:
+        sensor, problem, fix = dropouts.refusal(runs, 0, h.n_samples, _seconds_from_first(path, h), min_run)
+        raise RecordingError(path, sensor, problem, "re-import the file (calib import trims such runs at the ends "
+                             "and names the windows around one inside), or " + fix)
+
+
+def _seconds_from_first(path, h: Header) -> np.ndarray:
+    """Each sample's time from the first (the time coordinate, or the sample clock)."""
+    if not h.has_time:
+        return np.arange(h.n_samples) / h.sample_rate_hz
+    with netCDF4.Dataset(path, "r") as nc:
+        t = np.asarray(float_values(nc.variables["time"]), dtype=float)
+    return t - t[0]
 
 
 def slice_bounds(n_time_chunk: int | None, start: int, stop: int, target: int) -> list[tuple[int, int]]:

@@ -37,6 +37,7 @@ import netCDF4
 import numpy as np
 import xarray as xr
 
+from calib.core import clock
 from calib.nav import alignment
 from calib.nav import reader
 from calib.core import earth
@@ -144,36 +145,23 @@ def raw_to_increments(header: recording.Header, accel, gyro, calibration=None):
     return out[0], out[1]
 
 
-def check_time(header: recording.Header, chunk: int = 1_000_000, rel_tol: float = 0.01) -> None:
-    """With a time coordinate: every step must equal 1/sample_rate within ``rel_tol`` (no gaps, no jitter
-    beyond 1 %), else :class:`RecordingError` naming the first bad sample. (Monotonicity is checked by
-    :func:`calib.io.recording.read_header`.)"""
+def check_time(header: recording.Header) -> None:
+    """With a time coordinate: the clock fitted to it (:func:`calib.io.recording.check_clock`, which refuses a gap
+    naming the windows either side) must hold no dropped sample, since the navigation integrates one sample
+    period per sample; jitter of the stamps is not in the samples and is accepted. Else
+    :class:`RecordingError` naming the first drop."""
     if not header.has_time:
         return
-    dt = header.dt
-    nc = netCDF4.Dataset(header.path, "r")
-    try:
+    with netCDF4.Dataset(header.path, "r") as nc:
         nc.set_auto_mask(False)
-        tv = nc.variables["time"]
-        last = None
-        for i0 in range(0, header.n_samples, chunk):
-            t = np.asarray(tv[i0:min(i0 + chunk, header.n_samples)], dtype=float)
-            if last is not None:
-                t = np.concatenate([[last], t])
-                base = i0 - 1
-            else:
-                base = i0
-            d = np.diff(t)
-            bad = np.abs(d - dt) > rel_tol * dt
-            if bad.any():
-                k = int(np.argmax(bad))
-                raise RecordingError(header.path, "time", f"step of {d[k]:.6g} s between samples {base + k} and "
-                                     f"{base + k + 1} (t = {t[k]:.6f} s) but the sample rate "
-                                     f"{header.sample_rate_hz:g} Hz implies {dt:.6g} s: a gap or a jump",
-                                     "split the recording at the gap or fill it before navigating")
-            last = t[-1]
-    finally:
-        nc.close()
+        t = np.asarray(nc.variables["time"][:], dtype=float)
+    clk = recording.check_clock(header.path, t, header.sample_rate_hz)
+    if clk.n_dropped:
+        j, c = int(clk.dropped_after[0]), int(clk.dropped_count[0])
+        windows = [(0.0, 0.5 * (t[j] + t[j + 1]) - t[0]), (0.5 * (t[j] + t[j + 1]) - t[0], t[-1] - t[0] + header.dt)]
+        raise RecordingError(header.path, "time", f"{clk.n_dropped} dropped sample(s), the first {c} between samples "
+                             f"{j} and {j + 1} (t = {t[j]:.6f} s): the navigation integrates one sample period per "
+                             "sample", clock.window_fix(windows, "the drops") + " (or fill the drops at the source)")
 
 
 # ======================================================================================================
