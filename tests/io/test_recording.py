@@ -374,15 +374,15 @@ def test_values_read_without_xarray_decode_as_xarray_does(tmp_path):
 
 
 def test_the_check_of_a_recording_imports_neither_xarray_nor_pandas(tmp_path):
-    """The whole check of a recording (header, segment table, every sample, plausibility -- what calib diagnose's
-    and calib navigate's helper runs, and calib validate) without xarray and pandas: their import is 0.3 s of
-    every such process. Run in a fresh interpreter; fails if any module on the path imports them."""
+    """The whole check of a recording (header, segment table, every sample, plausibility -- what calib validate,
+    calib diagnose and calib navigate run first) without xarray and pandas: their import is 0.3 s of every such
+    process. Run in a fresh interpreter; fails if any module on the path imports them."""
     import subprocess
     import sys
 
     path = recording.write(good_dataset(2), tmp_path / "ok.nc")
-    code = ("import sys\nfrom calib.cli import _input_check\n"
-            f"key, h, warnings = _input_check({str(path)!r}, True, 'recording')\n"
+    code = ("import sys\nfrom calib.cli import _check_recording\n"
+            f"h, plausible = _check_recording({str(path)!r}, True, 'recording')\n"
             "assert h.n_samples == %d, h.n_samples\n"
             "print(sorted(m for m in ('xarray', 'pandas') if m in sys.modules))\n" % N)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
