@@ -1,7 +1,7 @@
 """The recording format ``calib-recording-1``: one netCDF file per session, read and written here only.
 
-Layout (see README, "Recording format")
----------------------------------------
+Layout (docs/recording-format.md)
+---------------------------------
 dims ``time`` and ``axis`` (= x, y, z); optional ``segment``, ``row``, ``col``.
 
 * ``time(time)`` seconds from the start, **or** (long files) no ``time`` variable and the global

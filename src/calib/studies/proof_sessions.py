@@ -27,7 +27,7 @@ PROOF_SESSIONS = {
     # the two triads' halves of the temperature effect scored on their own, each exactly per sensor (the registry
     # default puts the gyro temperature bias at 1.4 Fisher bounds, calib.sim.fisher: not detectable by anything).
     # The gyro warm-up is not a proof session: on this path the diagnosis's 1-sigma error (0.15 deg/h) exceeds ten
-    # times its typical magnitude, so it is listed untestable at any size (README, "Fisher bounds")
+    # times its typical magnitude, so it is listed untestable at any size (docs/diagnosis.md, "Fisher bounds")
     "temperature_sensitivity": ("single", {"temperature_sensitivity": {
         "gyro_bias_deg_h_per_degC": [0.0, 0.0, 0.0], "gyro_scale_ppm_per_degC": [0.0, 0.0, 0.0]}}, {}),
     "temperature_sensitivity_gyro": ("single", {"temperature_sensitivity": {
