@@ -5,6 +5,8 @@
     python3 run.py test    # create/reuse .venv, install, run pytest (one worker per core) with the .test workflow
                            # beside it, the import-layer contract, snakemake --lint, the CF check of the .test products
                            # and the documentation built with warnings as errors (mkdocs build --strict)
+    python3 run.py setup [--slurm]   # create/reuse .venv and install; --slurm adds the SLURM executor plugin
+                                     # (the slurm extra; docs/scale-out.md)
 
 Needs only Python >= 3.11 and pip. Extra arguments after the verb go to snakemake (study) or pytest (test).
 """
@@ -71,7 +73,7 @@ class Beside:
         return False
 
 
-def setup():
+def setup(slurm=False):
     if sys.version_info < (3, 11):
         sys.exit(f"calib needs Python >= 3.11, this is {sys.version.split()[0]}")
     if not PY.exists():
@@ -83,6 +85,10 @@ def setup():
         sh(PY, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
         sh(PY, "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[workflow,test]")
         stamp.write_bytes(spec)
+    slurm_stamp = VENV / ".calib-installed-slurm"
+    if slurm and (not slurm_stamp.exists() or slurm_stamp.read_bytes() != spec):
+        sh(PY, "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[workflow,test,slurm]")
+        slurm_stamp.write_bytes(spec)
     env = dict(os.environ)
     env["PATH"] = f"{BIN}{os.pathsep}{env.get('PATH', '')}"
     return env
@@ -137,7 +143,7 @@ def main(argv):
         with tempfile.TemporaryDirectory(prefix="calib-site-") as site:
             sh(BIN / "mkdocs", "build", "--strict", "--quiet", "--site-dir", site, env=env)
     elif verb == "setup":
-        setup()
+        setup(slurm="--slurm" in rest)
     else:
         print(__doc__)
         sys.exit(0 if verb in ("help", "-h", "--help") else 2)
