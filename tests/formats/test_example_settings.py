@@ -111,7 +111,8 @@ def test_imucal_example(tmp_path):
         theta = -2 * math.pi * np.arange(m) / m
         up = np.array([0.0, 0.0, G]) if ax != 2 else np.array([G, 0.0, 0.0])
         f = np.array([_rx(ax, th).T @ up for th in theta])
-        w = np.zeros((m, 3))
+        # a real gyro's noise on the other axes (noise-free rows would repeat: a stuck run, refused at import)
+        w = 0.05 * rng.standard_normal((m, 3))
         w[:, ax] = math.degrees(-2 * math.pi / 4.0)   # deg/s
         rows.append(np.column_stack([f, w]))
         labels += [f"{'xyz'[ax]}_rot"] * m
