@@ -14,6 +14,7 @@ import xarray as xr
 import yaml
 
 from calib import cli
+from calib.io import recording
 
 FS = 1200.0
 G = 9.80665
@@ -97,6 +98,12 @@ def test_accel_only_mat_record_through_import_validate_fieldcal(tmp_path, capsys
     np.testing.assert_allclose([params[f"accel.gain_{a}"] for a in "xyz"], GAIN, atol=tol / G)
     for k, v in MIS.items():
         assert params[f"accel.{k}"] == pytest.approx(v, abs=tol / G)
+    # the calibration applied to the record: the static specific force is gravity
+    code, _, err = run(capsys, "apply", out, rec, tmp_path / "calibrated.nc")
+    assert code == 0, err
+    cal_acc = recording.load(tmp_path / "calibrated.nc")["accel"].values
+    rest = cal_acc[: int(2 * REST_S * FS)]   # the first rest
+    assert np.linalg.norm(rest.mean(axis=0)) == pytest.approx(G, abs=tol)
 
 
 def test_three_pose_accel_record_is_refused_naming_the_poses_it_lacks(tmp_path, capsys):

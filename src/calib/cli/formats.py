@@ -189,12 +189,12 @@ def cmd_apply(a):
     cli = _cli()
     input_file(a.calibration, "calibration file")
     cal = export_formats.load_calibration(a.calibration)
-    h, _ = cli._recording(a.recording, a.force)
+    h, _ = cli._recording(a.recording, a.force, need=("accel",))   # an accelerometer-only record: its accel
     cli._output_file(a.out, "calibrated recording")
     if Path(a.out).resolve() == Path(a.recording).resolve():
         raise InputError("the output would replace the recording", file=a.out, fix="write to another file")
     cal.check_recording("accel", h.accel_units, h.accel_kind, a.recording)
-    if cal.gyro is not None:
+    if cal.gyro is not None and "gyro" in h.sensors:
         cal.check_recording("gyro", h.gyro_units, h.gyro_kind, a.recording)
     prov = provenance("apply")
     prov.update({"source_file": str(a.recording), "source_file_sha256": sha256(a.recording),
@@ -211,7 +211,7 @@ def cmd_apply(a):
 
 def _rates(cal, h, fs, acc, gyr):
     ra = acc * (fs if h.accel_kind == "increment" else 1.0)
-    if cal.gyro is None:
+    if cal.gyro is None or gyr is None:
         return cal.apply(ra), None
     rg = gyr * (fs if h.gyro_kind == "increment" else 1.0)
     return cal.apply(ra, rg)
@@ -227,12 +227,15 @@ def _apply_in_memory(a, cal, h, fs, prov):
     from calib.io import recording
 
     ds = recording.load(a.recording, validate_all=False)
-    acc, gyr = np.asarray(ds["accel"].values, float), np.asarray(ds["gyro"].values, float)
+    acc = np.asarray(ds["accel"].values, float)
+    gyr = np.asarray(ds["gyro"].values, float) if "gyro" in ds else None   # (None: an accelerometer-only record)
     ca, cg = _rates(cal, h, fs, acc, gyr)
     out = ds.copy()
     out["accel"] = (("time", "axis"), ca, dict(ACCEL_ATTRS))
     if cg is not None:
         out["gyro"] = (("time", "axis"), cg, dict(GYRO_ATTRS))
+    elif gyr is None:
+        prov["calibration_note"] = "the recording holds no gyroscope (a partial record): the accelerometer calibrated"
     else:
         prov["calibration_note"] = "the calibration holds no gyro: gyro copied unchanged"
     out.attrs = {k: v for k, v in ds.attrs.items() if not k.startswith("_")}
@@ -248,6 +251,10 @@ def _apply_chunked(a, cal, h, fs, prov):
 
     if cal.gyro is None:
         raise InputError("a long recording needs a calibration with a gyro", file=a.calibration, field="gyro")
+    if "gyro" not in h.sensors:
+        raise InputError("a long recording (no time coordinate) is calibrated chunk by chunk with both triads; this "
+                         "one holds accelerometers only", file=a.recording, field="gyro",
+                         fix="import it with a time coordinate (fewer than 2 000 000 samples per file)")
     with netCDF4.Dataset(a.recording) as nc:
         has_t = "temperature" in nc.variables
     attrs = {k: v for k, v in h.attrs.items() if k not in ("Conventions", "conventions", "latitude_deg", "height_m",
