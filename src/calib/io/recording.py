@@ -356,7 +356,7 @@ def require_sensors(header: Header, needed=SENSORS, path=None) -> None:
     raise RecordingError(path or header.path, missing[0], f"the recording holds {holds} only (absent_sensors = "
                          f"{' '.join(header.absent)!r}); this command needs {want} as well",
                          "give a recording of both triads; a partial record goes through calib validate, calib "
-                         "noise (either triad) and calib fieldcal (accelerometer calibration)")
+                         "noise (either triad), calib fieldcal and calib apply (accelerometer calibration)")
 
 
 def _check_finite(path, name, arr, offset=0):
