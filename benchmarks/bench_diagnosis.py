@@ -102,12 +102,12 @@ class PhaseTimer:
 
 
 def _noise_record(d: Path) -> str:
-    from calib.sim import simulator
+    from calib.sim.static_session import simulate_static_session
     path = d / "static_2h.nc"
-    simulator.simulate_static_session({"mode": "counts", "duration_h": 2.0,
-                                       "site": {"latitude_deg": 30.58, "height_m": 0.0}, "sample_rate_hz": 100.0,
-                                       "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}},
-                                      20261125, path, d / "static_2h.truth.json")
+    simulate_static_session({"mode": "counts", "duration_h": 2.0,
+                             "site": {"latitude_deg": 30.58, "height_m": 0.0}, "sample_rate_hz": 100.0,
+                             "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}},
+                            20261125, path, d / "static_2h.truth.json")
     return str(path)
 
 

@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from calib.sim import simulator
+from calib.sim.static_session import simulate_static_session
 
 #: the test files that take longest (CPU s on one core, or wall s where they wait on subprocesses), longest
 #: first. With several pytest-xdist workers (``python3 run.py test``: ``--dist loadfile``) the files are handed out
@@ -48,7 +48,7 @@ def noise_record(tmp_path_factory):
     calibration session: the diagnosis measures the slow noise between its windows on it (Allan deviation)."""
     d = tmp_path_factory.mktemp("noise_record")
     path = d / "static_2h.nc"
-    simulator.simulate_static_session({"mode": "counts", "duration_h": 2.0, "site": SITE, "sample_rate_hz": 100.0,
-                                       "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}},
-                                      20261125, path, d / "static_2h.truth.json")
+    simulate_static_session({"mode": "counts", "duration_h": 2.0, "site": SITE, "sample_rate_hz": 100.0,
+                             "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}},
+                            20261125, path, d / "static_2h.truth.json")
     return str(path)

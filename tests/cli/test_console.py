@@ -11,7 +11,7 @@ import pytest
 
 from calib import cli
 from calib.core import progress
-from calib.sim import simulator
+from calib.sim.calibration_session import simulate_calibration_session
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL_CONFIG = ROOT / ".test" / "config.yaml"
@@ -19,9 +19,9 @@ SMALL_CONFIG = ROOT / ".test" / "config.yaml"
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    return simulator.simulate_calibration_session({"site": {"latitude_deg": 30.58, "height_m": 0.0},
-                                                   "dwell_s": 20.0, "revolutions": 1}, 8,
-                                                  tmp_path_factory.mktemp("cal") / "session.nc")
+    return simulate_calibration_session({"site": {"latitude_deg": 30.58, "height_m": 0.0},
+                                         "dwell_s": 20.0, "revolutions": 1}, 8,
+                                        tmp_path_factory.mktemp("cal") / "session.nc")
 
 
 def test_calibrate_prints_only_its_result_on_stdout(tmp_path, capsys, session):

@@ -18,14 +18,15 @@ import pytest
 
 from calib.diagnosis import geometry, library
 from calib.io import recording
-from calib.sim import effects, simulator
+from calib.sim import effects
+from calib.sim.calibration_session import simulate_calibration_session
 
 SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    path = simulator.simulate_calibration_session(SHORT, 3, tmp_path_factory.mktemp("fast") / "s.nc")
+    path = simulate_calibration_session(SHORT, 3, tmp_path_factory.mktemp("fast") / "s.nc")
     return recording.load(path)
 
 

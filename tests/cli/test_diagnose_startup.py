@@ -11,7 +11,7 @@ from pathlib import Path
 
 from calib import cli
 from calib.io import recording
-from calib.sim import simulator
+from calib.sim.calibration_session import simulate_calibration_session
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT_SESSION = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
@@ -68,7 +68,7 @@ def test_a_figure_is_drawn_with_the_project_style(tmp_path):
 
 
 def test_each_input_is_read_once_with_the_same_report(tmp_path, capsys, monkeypatch, noise_record):
-    rec = simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "clean.nc")
+    rec = simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "clean.nc")
     settings = tmp_path / "s.json"
     settings.write_text(json.dumps({"figures": False}))
     log = tmp_path / "reads.txt"
@@ -103,7 +103,7 @@ def test_a_recording_without_segment_table_is_checked_once(tmp_path, monkeypatch
 
     from calib.diagnosis import load_for_diagnosis
 
-    rec = simulator.simulate_calibration_session(SHORT_SESSION, 9, tmp_path / "with_table.nc")
+    rec = simulate_calibration_session(SHORT_SESSION, 9, tmp_path / "with_table.nc")
     with xr.open_dataset(rec, engine="netcdf4") as ds:
         bare = ds.load().drop_vars([v for v in ds.variables if "segment" in ds[v].dims
                                     or v in ("segment_index", "table_angle")])

@@ -17,7 +17,7 @@ import pytest
 
 from calib import cli
 from calib.core import errors
-from calib.sim import simulator
+from calib.sim.calibration_session import simulate_calibration_session
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL_CONFIG = ROOT / ".test" / "config.yaml"
@@ -67,11 +67,11 @@ def test_success_is_0(tmp_path, capsys):
 def test_diagnose_verdicts_map_to_0_and_3(tmp_path, capsys, noise_record):
     settings = tmp_path / "s.json"
     settings.write_text(json.dumps({"figures": False}))
-    clean = simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "clean.nc")
+    clean = simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "clean.nc")
     assert cli.main(["diagnose", str(clean), "--out", str(tmp_path / "d0"), "--settings", str(settings),
                      "--noise-record", noise_record]) == 0
-    few = simulator.simulate_calibration_session({**SHORT_SESSION, "positions_per_phase": 1, "step_deg": 90.0}, 1,
-                                                 tmp_path / "few.nc")
+    few = simulate_calibration_session({**SHORT_SESSION, "positions_per_phase": 1, "step_deg": 90.0}, 1,
+                                       tmp_path / "few.nc")
     assert cli.main(["diagnose", str(few), "--out", str(tmp_path / "d3"), "--settings", str(settings)]) == 3
     verdicts = [json.loads((tmp_path / d / "report.json").read_text())["verdict"] for d in ("d0", "d3")]
     assert verdicts == ["adequate", "inconclusive"]

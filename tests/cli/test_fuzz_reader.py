@@ -16,7 +16,7 @@ from calib import cli
 from calib.core.errors import InputError
 from calib.io import recording
 from calib.io.netcdf import write_netcdf
-from calib.sim import simulator
+from calib.sim.static_session import simulate_static_session
 
 FUZZ = settings(max_examples=40, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -26,8 +26,8 @@ FUZZ = settings(max_examples=40, deadline=None, derandomize=True, database=None,
 def seed_file(tmp_path_factory):
     """A valid recording with an explicit time coordinate (30 s at 100 Hz, physical increments)."""
     folder = tmp_path_factory.mktemp("fuzz")
-    long_form = simulator.simulate_static_session({"mode": "physical", "duration_h": 30.0 / 3600.0,
-                                                   "site": {"latitude_deg": 30.58}}, 5, folder / "long.nc")
+    long_form = simulate_static_session({"mode": "physical", "duration_h": 30.0 / 3600.0,
+                                         "site": {"latitude_deg": 30.58}}, 5, folder / "long.nc")
     ds = recording.load(long_form)
     del ds.attrs["_path"]
     return recording.write(ds, folder / "seed.nc")

@@ -21,7 +21,7 @@ import yaml
 from calib import cli
 from calib.fieldcal import default_detection
 from calib.io import recording
-from calib.sim import simulator
+from calib.sim.calibration_session import simulate_calibration_session
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data"
@@ -112,7 +112,7 @@ def test_an_import_settings_rate_other_than_the_recording_s_is_refused(tmp_path,
 def test_a_refused_recording_gets_no_report(tmp_path, capsys):
     """A NaN at one sample: calib diagnose exits 2 naming the sample and writes neither report.json nor report.md
     (nor its folder); an earlier report in the folder stays as it was."""
-    rec = simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "s.nc")
+    rec = simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "s.nc")
     ds = recording.load(rec)
     ds["accel"] = (ds["accel"].dims, ds["accel"].values.astype(np.float64), ds["accel"].attrs)
     del ds.attrs["_path"]
@@ -133,7 +133,7 @@ def test_a_refused_recording_gets_no_report(tmp_path, capsys):
 def test_a_single_absurd_count_sample_is_refused_before_calibrate_s_fit(tmp_path, capsys):
     """One accelerometer sample of 1e30 counts in a calibration session: validate and calibrate refuse it (exit 2)
     by its index before any fit, and calibrate writes nothing; the same file without it passes validate."""
-    rec = simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "s.nc")
+    rec = simulate_calibration_session(SHORT_SESSION, 8, tmp_path / "s.nc")
     ds = recording.load(rec)
     acc = ds["accel"].values.astype(np.float64)
     acc[4321, 1] = 1e30

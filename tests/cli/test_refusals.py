@@ -22,7 +22,8 @@ from calib.core import earth
 from calib.io import recording
 from calib.io.netcdf import write_netcdf
 from calib.signal import plausibility
-from calib.sim import simulator
+from calib.sim.calibration_session import simulate_calibration_session
+from calib.sim.static_session import simulate_static_session
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL_CONFIG = ROOT / ".test" / "config.yaml"
@@ -51,8 +52,8 @@ def leftovers(folder):
 def static_rates(tmp_path_factory):
     """A 36 s stationary session from the simulator as rates: accel [m s-2], gyro [rad s-1] (Earth rate seen)."""
     path = tmp_path_factory.mktemp("sim") / "static.nc"
-    simulator.simulate_static_session({"mode": "physical", "duration_h": 0.01, "site": SITE,
-                                       "attitude_deg": {"pitch": 10.0, "roll": -5.0, "yaw": 30.0}}, 7, path)
+    simulate_static_session({"mode": "physical", "duration_h": 0.01, "site": SITE,
+                             "attitude_deg": {"pitch": 10.0, "roll": -5.0, "yaw": 30.0}}, 7, path)
     ds = recording.load(path)
     return ds["accel"].values * FS, ds["gyro"].values * FS
 
@@ -60,7 +61,7 @@ def static_rates(tmp_path_factory):
 @pytest.fixture(scope="module")
 def count_session(tmp_path_factory):
     """The short Liu 2021 calibration session (counts, segment table)."""
-    return simulator.simulate_calibration_session(SHORT_SESSION, 8, tmp_path_factory.mktemp("cal") / "session.nc")
+    return simulate_calibration_session(SHORT_SESSION, 8, tmp_path_factory.mktemp("cal") / "session.nc")
 
 
 def physical(folder, name, accel, gyro, accel_units="m s-2", gyro_units="rad s-1", accel_kind="rate",
@@ -365,12 +366,12 @@ def test_diagnose_interrupted_after_its_figures_leaves_the_earlier_report_whole(
 
 def test_simulate_interrupted_at_its_truth_file_writes_neither(tmp_path, capsys, monkeypatch):
     """A recording and its truth sidecar are one set: interrupted while the truth is written, neither appears."""
-    from calib.sim import simulator as sim_module
+    from calib.sim import static_session
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(sim_module, "write_json", interrupted)
+    monkeypatch.setattr(static_session, "write_json", interrupted)
     code, err = run(capsys, "simulate", "static_check", tmp_path / "s.nc", "--config", SMALL_CONFIG, "--hours", "0.005")
     assert code == 130 and "interrupted by SIGINT" in err
     assert sorted(os.listdir(tmp_path)) == []
@@ -452,7 +453,7 @@ def test_non_finite_navigation_exits_3_and_keeps_the_earlier_output(tmp_path, ca
     from calib.core.triad import liu2021_model
 
     rec = tmp_path / "static.nc"
-    simulator.simulate_static_session({"mode": "counts", "duration_h": 0.002, "site": SITE}, 3, rec)
+    simulate_static_session({"mode": "counts", "duration_h": 0.002, "site": SITE}, 3, rec)
     vec = {s: liu2021_model(s).to_vector() for s in ("accel", "gyro")}
     vec["accel"][0:3] = 1e-300
     cal = tmp_path / "tiny.nc"
@@ -473,7 +474,7 @@ def test_gyro_units_checked_against_the_table_angle(tmp_path):
     from calib.core.triad import liu2021_model
     from calib.signal import plausibility
 
-    sess = simulator.simulate_calibration_session(
+    sess = simulate_calibration_session(
         {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 10.0, "revolutions": 1}, 3, tmp_path / "c.nc")
     ds = recording.load(sess)
     fs = float(ds.attrs["sample_rate_hz"])
@@ -533,7 +534,7 @@ def test_units_and_calibration_that_do_not_pair_are_refused_before_any_sample_is
         extra, fix = ["--calibration", cal], "calib navigate without --calibration"
     else:
         rec = tmp_path / "static.nc"
-        simulator.simulate_static_session({"mode": "counts", "duration_h": 0.002, "site": SITE}, 3, rec)
+        simulate_static_session({"mode": "counts", "duration_h": 0.002, "site": SITE}, 3, rec)
         extra, fix = [], "calib navigate --calibration default_calibration.nc"
     capsys.readouterr()
 
@@ -633,7 +634,7 @@ def test_navigate_reads_the_calibration_file_once(tmp_path, capsys, monkeypatch)
     from calib.core.triad import liu2021_model
 
     rec = tmp_path / "static.nc"
-    simulator.simulate_static_session({"mode": "counts", "duration_h": 0.002, "site": SITE}, 3, rec)
+    simulate_static_session({"mode": "counts", "duration_h": 0.002, "site": SITE}, 3, rec)
     cal = tmp_path / "cal.nc"
     xr.Dataset({s: (("parameter",), liu2021_model(s).to_vector()) for s in ("accel", "gyro")}).to_netcdf(cal)
     opens, open_dataset = [], xr.open_dataset

@@ -8,7 +8,8 @@ import pytest
 
 from calib.diagnosis import geometry, noise
 from calib.io import recording
-from calib.sim import simulator
+from calib.sim.calibration_session import simulate_calibration_session
+from calib.sim.settings import sensor_models
 
 SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
 
@@ -19,7 +20,7 @@ def test_geometry_whole_revolutions_and_noise_free_base_model(tmp_path):
     of the harmonics (sinc of half the angle step, < 2e-6 relative)."""
     quiet = {"accel_vrw_ug_rthz": 0.0, "accel_bias_instability_ug": 0.0, "gyro_arw_deg_rth": 0.0,
              "gyro_bias_instability_deg_h": 0.0, "quantize": False}
-    path = simulator.simulate_calibration_session({**SHORT, "noise": quiet}, 0, tmp_path / "q.nc")
+    path = simulate_calibration_session({**SHORT, "noise": quiet}, 0, tmp_path / "q.nc")
     ds = recording.load(path)
     geom = geometry.build_geometry(ds)
     for w in geom.rotation:
@@ -29,7 +30,7 @@ def test_geometry_whole_revolutions_and_noise_free_base_model(tmp_path):
     y, _ = geometry.reduce_data(geom, ds)
     xr, ones = geometry.reduced_inputs(geom)
     X = geometry.base_design(geom, xr, ones)
-    a, g = simulator.sensor_models("liu2021")
+    a, g = sensor_models("liu2021")
     theta = np.concatenate([a.KE.ravel(), a.b, g.KE.ravel(), g.b])
     res = y - X @ theta
     scale = np.abs(y).max()
@@ -39,7 +40,7 @@ def test_geometry_whole_revolutions_and_noise_free_base_model(tmp_path):
 def test_gauss_markov_window_means_are_the_double_integral(tmp_path):
     """Covariance of two static-window means of a unit-variance Gauss-Markov bias: (1 / (T_j T_k)) times the
     double integral of exp(-|s - t| / Tc) over the two windows, here by the midpoint rule on a fine grid."""
-    path = simulator.simulate_calibration_session(SHORT, 0, tmp_path / "s.nc")
+    path = simulate_calibration_session(SHORT, 0, tmp_path / "s.nc")
     geom = geometry.build_geometry(recording.load(path))
     tc = 300.0
     A = noise.gm_part(geom, "accel", tc)

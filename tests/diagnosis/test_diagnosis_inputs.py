@@ -10,7 +10,7 @@ from calib import cli
 from calib import diagnosis as dg
 from calib.io import recording
 from calib.sim import effects
-from calib.sim import simulator
+from calib.sim.calibration_session import simulate_calibration_session
 
 SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
 FAST = {"figures": False}
@@ -18,7 +18,7 @@ FAST = {"figures": False}
 
 def test_too_few_segments_is_inconclusive(tmp_path):
     cfg = {**SHORT, "positions_per_phase": 1, "step_deg": 90.0}
-    path = simulator.simulate_calibration_session(cfg, 1, tmp_path / "few.nc")
+    path = simulate_calibration_session(cfg, 1, tmp_path / "few.nc")
     rep = dg.diagnose_recording(path, tmp_path / "out", FAST)
     assert rep["verdict"] == "inconclusive"
     assert "static segments" in rep["verdict_reason"]
@@ -28,7 +28,7 @@ def test_too_few_segments_is_inconclusive(tmp_path):
 
 def test_too_short_is_inconclusive(tmp_path):
     cfg = {**SHORT, "dwell_s": 1.0, "rotation_rates_deg_s": [], "transition_s": [0.5, 0.2], "move_rate_deg_s": 90.0}
-    path = simulator.simulate_calibration_session(cfg, 1, tmp_path / "short.nc")
+    path = simulate_calibration_session(cfg, 1, tmp_path / "short.nc")
     rep = dg.diagnose_recording(path, tmp_path / "out", FAST)
     assert rep["verdict"] == "inconclusive"
     assert "lasts" in rep["verdict_reason"] or "static" in rep["verdict_reason"]
@@ -36,7 +36,7 @@ def test_too_short_is_inconclusive(tmp_path):
 
 
 def test_flat_data_missing_sigma_is_inconclusive(tmp_path):
-    path = simulator.simulate_calibration_session({**SHORT, "conceal": True}, 1, tmp_path / "s.nc")
+    path = simulate_calibration_session({**SHORT, "conceal": True}, 1, tmp_path / "s.nc")
     ds = recording.load(path)
     ds["accel"] = (ds["accel"].dims, np.full(ds["accel"].shape, 1000, dtype=np.int32), ds["accel"].attrs)
     rep, _ = dg.diagnose_dataset(ds, tmp_path, FAST, path="flat")
@@ -58,7 +58,7 @@ def test_unreadable_file_is_inconclusive(tmp_path):
 
 
 def test_report_files_and_cli(tmp_path, noise_record):
-    path = simulator.simulate_calibration_session(
+    path = simulate_calibration_session(
         {**SHORT, "effects": {"accel_scale_asymmetry": {"asym_ppm": [150.0, -120.0, 90.0]}}, "conceal": True}, 8,
         tmp_path / "a.nc")
     settings = tmp_path / "settings.json"

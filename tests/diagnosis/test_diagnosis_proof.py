@@ -11,7 +11,7 @@ import xarray as xr
 
 from calib.core import seeds
 from calib.io import recording
-from calib.sim import simulator
+from calib.sim.calibration_session import build_calibration_simulator, simulate_calibration_session
 from calib.studies import diagnosis as diagnosis_study
 from calib.studies import diagnosis_proof
 from calib.studies.diagnosis_proof import FastSession, run_proof
@@ -24,19 +24,19 @@ def test_fast_session_is_the_simulator(tmp_path):
     """The proof's per-seed generator, and the simulator's own seed API it rests on, give exactly the counts
     the simulator writes for that seed."""
     cfg = {**SHORT, "effects": {"time_offset": {"offset_s": 0.01}}, "conceal": True}
-    path = simulator.simulate_calibration_session(cfg, 5, tmp_path / "s5.nc")
+    path = simulate_calibration_session(cfg, 5, tmp_path / "s5.nc")
     ds = recording.load(path)
     fs = FastSession(cfg, tmp_path / "fast")
     fast = fs.dataset(5)
     # its end-to-end file is the simulator's own, byte for byte
-    assert fs.path.read_bytes() == simulator.simulate_calibration_session(cfg, 0, tmp_path / "s0.nc").read_bytes()
+    assert fs.path.read_bytes() == simulate_calibration_session(cfg, 0, tmp_path / "s0.nc").read_bytes()
     assert np.array_equal(ds["accel"].values, fast["accel"].values)
     assert np.array_equal(ds["gyro"].values, fast["gyro"].values)
-    sim = simulator.build_calibration_simulator(cfg, 0)
+    sim = build_calibration_simulator(cfg, 0)
     acc, gyr = sim.counts(5, clean=sim.clean_increments())
     assert acc.dtype == ds["accel"].values.dtype
     assert np.array_equal(acc, ds["accel"].values) and np.array_equal(gyr, ds["gyro"].values)
-    acc2, _ = simulator.build_calibration_simulator(cfg, 5).counts()
+    acc2, _ = build_calibration_simulator(cfg, 5).counts()
     assert np.array_equal(acc2, ds["accel"].values)
 
 
@@ -52,7 +52,7 @@ def test_shared_noise_is_the_simulator(tmp_path):
     assert len(diagnosis_proof._NOISE) == 1
     for i, cfg in enumerate((cfg_b, noisier)):
         fast = FastSession(cfg, tmp_path / f"f{i}").dataset(7)
-        ds = recording.load(simulator.simulate_calibration_session(cfg, 7, tmp_path / f"s{i}.nc"))
+        ds = recording.load(simulate_calibration_session(cfg, 7, tmp_path / f"s{i}.nc"))
         assert np.array_equal(ds["accel"].values, fast["accel"].values)
         assert np.array_equal(ds["gyro"].values, fast["gyro"].values)
     assert len(diagnosis_proof._NOISE) == 2       # the noisier unit's noise is its own

@@ -15,7 +15,7 @@ from calib.core.rotations import rot_x, rot_y, rot_z
 from calib.drift import bound
 from calib.drift import psobe
 from calib.nav import errormodel
-from calib.sim import simulator
+from calib.sim.static_session import simulate_static_session
 
 LAT = math.radians(30.58)
 ARW = 0.001 * math.pi / 180.0 / 60.0  # 0.001 deg/sqrt(h) in rad/sqrt(s)
@@ -165,7 +165,7 @@ def drift_problem(tmp_path_factory):
     est = {k: np.empty((n_seeds, 3)) for k in ("kalman", "lls_with_accel_bias", "lls_drift_only")}
     for k in range(n_seeds):
         path = work / f"s{k}.nc"
-        simulator.simulate_static_session(cfg, seeds.child_seed(4242, "session", k), path)
+        simulate_static_session(cfg, seeds.child_seed(4242, "session", k), path)
         cost = psobe.NavigationCost(psobe.load_window(path, window_h, 2.0), 60.0, [1, 1, 1, 10], "arcmin")
         path.unlink()
         est["kalman"][k] = psobe.kalman_baseline(cost, ARW, "true_attitude")[0]

@@ -6,7 +6,7 @@ import pytest
 
 from calib.drift import psobe as drift
 from calib.drift import pso
-from calib.sim import simulator as simulate
+from calib.sim.static_session import simulate_static_session
 from calib.core.earth import DEG_PER_H
 
 LAT = math.radians(30.58)
@@ -54,8 +54,8 @@ def test_filter_covariance_north_axis_equals_arw_over_sqrt_T():
 def quiet_window(tmp_path_factory):
     """1 h of He 2019 stationary data with no noise: drift (-0.01, 0.01, 0.01) deg/h, accel bias 1e-3 m/s^2."""
     p = tmp_path_factory.mktemp("drift") / "w.nc"
-    simulate.simulate_static_session({"mode": "physical", "duration_h": 1.0, "site": {"latitude_deg": 30.58},
-                                      "gyro_noise": {"model": "arw", "arw_deg_rth": 0.0}}, 1, p)
+    simulate_static_session({"mode": "physical", "duration_h": 1.0, "site": {"latitude_deg": 30.58},
+                             "gyro_noise": {"model": "arw", "arw_deg_rth": 0.0}}, 1, p)
     win = drift.load_window(p, 1.0, 2.0)
     return drift.NavigationCost(win, 60.0, [1, 1, 1, 10], "arcmin")
 
@@ -84,7 +84,7 @@ def test_two_hz_navigation_matches_100_hz_path(tmp_path):
     """The fitness uses 2 Hz navigation of pre-integrated increments; on the stationary data it matches the
     100 Hz single-speed path to 1e-3 of J."""
     p = tmp_path / "w.nc"
-    simulate.simulate_static_session({"mode": "physical", "duration_h": 0.5, "site": {"latitude_deg": 30.58}}, 3, p)
+    simulate_static_session({"mode": "physical", "duration_h": 0.5, "site": {"latitude_deg": 30.58}}, 3, p)
     X = np.array([TRUTH, [0.0, 0.0, 0.0], [0.02, -0.02, 0.0]])
     J = [drift.NavigationCost(drift.load_window(p, 0.5, r), 60.0, [1, 1, 1, 10], "arcmin")(X) for r in (2.0, 100.0)]
     assert J[0] == pytest.approx(J[1], rel=1e-3)
@@ -92,6 +92,6 @@ def test_two_hz_navigation_matches_100_hz_path(tmp_path):
 
 def test_window_longer_than_recording_is_refused(tmp_path):
     p = tmp_path / "w.nc"
-    simulate.simulate_static_session({"mode": "physical", "duration_h": 0.1, "site": {"latitude_deg": 30.58}}, 3, p)
+    simulate_static_session({"mode": "physical", "duration_h": 0.1, "site": {"latitude_deg": 30.58}}, 3, p)
     with pytest.raises(ValueError, match="window_h"):
         drift.load_window(p, 3.0, 2.0)

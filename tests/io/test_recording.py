@@ -488,15 +488,16 @@ def test_calib_diagnose_imports_neither_xarray_nor_pandas(tmp_path):
     import subprocess
     import sys
 
-    from calib.sim import simulator
+    from calib.sim.calibration_session import simulate_calibration_session
+    from calib.sim.static_session import simulate_static_session
 
-    rec = simulator.simulate_calibration_session({"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0,
-                                                  "revolutions": 1}, 8, tmp_path / "s.nc")
+    rec = simulate_calibration_session({"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0,
+                                        "revolutions": 1}, 8, tmp_path / "s.nc")
     nr = tmp_path / "nr.nc"
-    simulator.simulate_static_session({"mode": "counts", "duration_h": 0.2, "sample_rate_hz": 100.0,
-                                       "site": {"latitude_deg": 30.58, "height_m": 0.0},
-                                       "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}},
-                                      3, nr, tmp_path / "nr.truth.json")
+    simulate_static_session({"mode": "counts", "duration_h": 0.2, "sample_rate_hz": 100.0,
+                             "site": {"latitude_deg": 30.58, "height_m": 0.0},
+                             "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}},
+                            3, nr, tmp_path / "nr.truth.json")
     log = tmp_path / "modules.txt"
     code = ("import atexit, sys\n"
             "def spy():\n"

@@ -12,7 +12,7 @@ import pytest
 from calib.io import recording
 from calib.io.recording import RecordingError
 from calib.nav import reader
-from calib.sim import simulator
+from calib.sim.static_session import simulate_static_session, time_chunking
 
 FS = 100.0
 N = 10_007  # not a multiple of the file chunks
@@ -138,11 +138,11 @@ def test_unreadable_file_raises_a_recording_error(tmp_path):
 
 
 def test_time_chunking_splits_evenly_with_little_padding():
-    assert simulator._time_chunking(86_400_000, 1 << 20) == 1_040_964  # 83 chunks, the last 12 samples short
-    assert simulator._time_chunking(10, 1 << 20) == 10
-    assert simulator._time_chunking(90_000, 7_777) == 7_500
+    assert time_chunking(86_400_000, 1 << 20) == 1_040_964  # 83 chunks, the last 12 samples short
+    assert time_chunking(10, 1 << 20) == 10
+    assert time_chunking(90_000, 7_777) == 7_500
     for n, t in ((86_400_000, 1 << 20), (90_001, 7_777), (5, 2)):
-        c = simulator._time_chunking(n, t)
+        c = time_chunking(n, t)
         k = -(-n // c)
         assert c <= max(t, 1) and k * c - n < k
 
@@ -150,10 +150,10 @@ def test_time_chunking_splits_evenly_with_little_padding():
 def test_static_session_file_chunks_and_same_bytes(tmp_path):
     cfg = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "duration_h": 0.05, "sample_rate_hz": 100.0,
            "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}}
-    a = simulator.simulate_static_session(cfg, 4, tmp_path / "a.nc", prov={"made_by_rule": "test"},
-                                          chunk_samples=5_000)
-    b = simulator.simulate_static_session(cfg, 4, tmp_path / "b.nc", prov={"made_by_rule": "test"},
-                                          chunk_samples=5_000)
+    a = simulate_static_session(cfg, 4, tmp_path / "a.nc", prov={"made_by_rule": "test"},
+                                chunk_samples=5_000)
+    b = simulate_static_session(cfg, 4, tmp_path / "b.nc", prov={"made_by_rule": "test"},
+                                chunk_samples=5_000)
     assert a.read_bytes() == b.read_bytes()  # same configuration, same bytes
     with netCDF4.Dataset(a) as nc:
         assert nc["gyro"].chunking() == nc["accel"].chunking() == [4_500, 3]  # 18,000 samples in 4 chunks

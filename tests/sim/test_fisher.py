@@ -7,7 +7,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from calib.sim import effects as sim_effects
 from calib.sim import fisher
+from calib.sim.calibration_session import build_calibration_simulator
+from calib.sim.counts_engine import temperature_profile
 
 SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1, "conceal": True}
 
@@ -64,12 +67,9 @@ def test_a_wrong_local_g_is_not_determined_but_a_quadratic_nonlinearity_is():
 def test_derivatives_of_the_affine_effects_are_the_central_differences(monkeypatch):
     """The physical path is affine in every size parameter of one effect (all but the clock offset), so the
     derivative columns taken as one difference from zero equal the central differences at the true values."""
-    from calib.sim import effects as sim_effects
-    from calib.sim import simulator
-
-    sim = simulator.build_calibration_simulator({**SHORT, "effects": {}}, 0)
+    sim = build_calibration_simulator({**SHORT, "effects": {}}, 0)
     clean = sim.clean_increments()
-    temp = simulator.temperature_profile((np.arange(len(clean)) + 0.5) / sim.sample_rate_hz, sim.temperature)
+    temp = temperature_profile((np.arange(len(clean)) + 0.5) / sim.sample_rate_hz, sim.temperature)
     for eid in ("accel_lever_arm", "accel_scale_asymmetry", "gyro_scale_nonlinearity"):  # kinematics, transfer, rate
         assert eid in fisher.AFFINE_EFFECTS
         params = {k: v for k, v in sim_effects.resolve({eid: {}})[eid].items() if k != "enabled"}
@@ -85,9 +85,7 @@ def test_derivatives_of_the_affine_effects_are_the_central_differences(monkeypat
 def test_kept_nuisance_spectra_give_the_information_of_all_columns():
     """The base model's nuisance columns, kept as spectra for the sessions that share a noise-free signal, give the
     same information matrix as all columns transformed together."""
-    from calib.sim import simulator
-
-    sim = simulator.build_calibration_simulator({**SHORT, "effects": {}}, 0)
+    sim = build_calibration_simulator({**SHORT, "effects": {}}, 0)
     clean = sim.clean_increments()
     n = len(clean)
     e = np.zeros((n, 6))

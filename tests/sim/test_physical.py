@@ -14,7 +14,9 @@ import math
 import numpy as np
 import pytest
 
-from calib.sim import effects, physical, simulator
+from calib.sim import effects, physical
+from calib.sim.calibration_session import build_calibration_simulator
+from calib.sim.counts_engine import temperature_profile
 from calib.studies.diagnosis_proof import PROOF_SESSIONS
 
 SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1, "conceal": True}
@@ -22,9 +24,9 @@ SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "rev
 
 @pytest.fixture(scope="module")
 def base():
-    sim = simulator.build_calibration_simulator({**SHORT, "effects": {}}, 0)
+    sim = build_calibration_simulator({**SHORT, "effects": {}}, 0)
     dt = 1.0 / sim.sample_rate_hz
-    temp = simulator.temperature_profile((np.arange(sim.n_samples) + 0.5) * dt, sim.temperature)
+    temp = temperature_profile((np.arange(sim.n_samples) + 0.5) * dt, sim.temperature)
     return sim, sim.clean_increments(), temp
 
 
@@ -40,7 +42,7 @@ TOLERANCE = {"accel_scale_asymmetry": 2e-3, "gyro_scale_asymmetry": 2e-3, "confo
 def test_physical_path_agrees_with_the_registry_formulas(base, name):
     sim, clean, temp = base
     eff = PROOF_SESSIONS[name][1]
-    reg = simulator.build_calibration_simulator({**SHORT, "effects": eff}, 0).clean_increments()
+    reg = build_calibration_simulator({**SHORT, "effects": eff}, 0).clean_increments()
     phy = physical.inject(sim, clean, effects.resolve(eff), temp)
     d_reg, d_phy = reg - clean, phy - clean
     size = np.abs(d_reg).max()

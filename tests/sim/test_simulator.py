@@ -15,7 +15,11 @@ import xarray as xr
 from calib.core import earth
 from calib.sim import effects
 from calib.io import recording
-from calib.sim import simulator as simulate
+from calib.sim.calibration_session import (build_calibration_simulator, calibration_session_channels,
+                                           calibration_session_dataset, simulate_calibration_session)
+from calib.sim.counts_engine import NOISE_BLOCK, _noise_and_count
+from calib.sim.settings import NOISE_DEFAULTS, SimConfigError, STATIC_COUNTS_DEFAULTS, TEMPERATURE_DEFAULTS
+from calib.sim.static_session import simulate_static_session, static_counts_dataset
 from calib.sim import trajectory
 from calib.core.earth import STANDARD_GRAVITY
 from calib.core.triad import liu2021_model
@@ -60,14 +64,14 @@ def seg_slices(ds):
 @pytest.fixture(scope="module")
 def noisy(tmp_path_factory):
     d = tmp_path_factory.mktemp("cal")
-    path = simulate.simulate_calibration_session(SHORT, 7, d / "cal.nc", d / "cal.truth.json")
+    path = simulate_calibration_session(SHORT, 7, d / "cal.nc", d / "cal.truth.json")
     return path, recording.load(path), d
 
 
 @pytest.fixture(scope="module")
 def quiet(tmp_path_factory):
     d = tmp_path_factory.mktemp("calq")
-    path = simulate.simulate_calibration_session({**SHORT, "noise": QUIET}, 7, d / "cal.nc")
+    path = simulate_calibration_session({**SHORT, "noise": QUIET}, 7, d / "cal.nc")
     return recording.load(path)
 
 
@@ -186,7 +190,7 @@ def test_static_means_noise_free_within_quantisation(quiet):
 
 
 def test_static_means_with_noise(noisy):
-    nz = simulate.NOISE_DEFAULTS
+    nz = NOISE_DEFAULTS
     # 5 sigma of the segment mean: white noise K s_w / (sqrt(n) dt), bias instability K s_b; + quantisation 1/T
     s_wa = nz["accel_vrw_ug_rthz"] * 1e-6 * math.sqrt(DT) * ACC.K
     s_wg = nz["gyro_arw_deg_rth"] * 60.0 * math.sqrt(DT) * GYR.K
@@ -234,7 +238,7 @@ def test_table_angle_restarts_at_zero_and_sweeps_whole_revolutions(quiet):
 
 def test_rotation_windows_integrate_to_whole_revolutions(noisy, quiet):
     _revolution_check(quiet, lambda T: 1e-6)
-    nz = simulate.NOISE_DEFAULTS
+    nz = NOISE_DEFAULTS
     # 5 sigma: angle random walk ARW sqrt(T), bias instability s_b T, plus < 1 count of quantisation
     _revolution_check(noisy[1], lambda T: 5 * (nz["gyro_arw_deg_rth"] * math.sqrt(T / 3600.0)
                                             + nz["gyro_bias_instability_deg_h"] * T / 3600.0) + 1e-6)
@@ -243,7 +247,7 @@ def test_rotation_windows_integrate_to_whole_revolutions(noisy, quiet):
 def test_horizontal_rotation_windows(tmp_path):
     cfg = {**SHORT, "positions_per_phase": 1, "rotation_rates_deg_s": [30.0], "rotation_axes": "vertical+horizontal",
            "noise": QUIET}
-    ds = recording.load(simulate.simulate_calibration_session(cfg, 1, tmp_path / "h.nc"))
+    ds = recording.load(simulate_calibration_session(cfg, 1, tmp_path / "h.nc"))
     labels = [str(x) for x in ds["segment_label"].values]
     assert labels[3:9] == ["ROT-x+30", "ROT-x-30", "ROT-y+30", "ROT-y-30", "ROT-z+30", "ROT-z-30"]
     assert labels[9:] == ["ROTH-x+30", "ROTH-x-30", "ROTH-y+30", "ROTH-y-30", "ROTH-z+30", "ROTH-z-30"]
@@ -252,7 +256,7 @@ def test_horizontal_rotation_windows(tmp_path):
 
 def test_quantisation_tracks_integral(noisy):
     path, ds, _ = noisy
-    sim = simulate.build_calibration_simulator(SHORT, 7)
+    sim = build_calibration_simulator(SHORT, 7)
     eng = sim.engine()
     incs, counts = [], []
     for i0 in range(0, sim.n_samples, 50_000):
@@ -270,8 +274,8 @@ def test_quantisation_tracks_integral(noisy):
 
 def test_same_seed_identical_different_seed_differs(noisy, tmp_path):
     path, _, _ = noisy
-    p2 = simulate.simulate_calibration_session(SHORT, 7, tmp_path / "again.nc")
-    p3 = simulate.simulate_calibration_session(SHORT, 8, tmp_path / "other.nc")
+    p2 = simulate_calibration_session(SHORT, 7, tmp_path / "again.nc")
+    p3 = simulate_calibration_session(SHORT, 8, tmp_path / "other.nc")
     with xr.open_dataset(path) as a, xr.open_dataset(p2) as b, xr.open_dataset(p3) as c:
         assert a.load().identical(b.load())
         c = c.load()
@@ -281,21 +285,21 @@ def test_same_seed_identical_different_seed_differs(noisy, tmp_path):
 
 
 def test_bad_config_is_refused():
-    with pytest.raises(simulate.SimConfigError, match="site.latitude_deg"):
-        simulate.build_calibration_simulator({"dwell_s": 5}, 1)
-    with pytest.raises(simulate.SimConfigError, match="dwel_s"):
-        simulate.build_calibration_simulator({"site": SITE, "dwel_s": 5}, 1)
-    with pytest.raises(simulate.SimConfigError, match="effects.no_such_effect"):
-        simulate.build_calibration_simulator({"site": SITE, "effects": {"no_such_effect": {}}}, 1)
-    with pytest.raises(simulate.SimConfigError, match="k2_ug_per_g2"):
-        simulate.build_calibration_simulator(
+    with pytest.raises(SimConfigError, match="site.latitude_deg"):
+        build_calibration_simulator({"dwell_s": 5}, 1)
+    with pytest.raises(SimConfigError, match="dwel_s"):
+        build_calibration_simulator({"site": SITE, "dwel_s": 5}, 1)
+    with pytest.raises(SimConfigError, match="effects.no_such_effect"):
+        build_calibration_simulator({"site": SITE, "effects": {"no_such_effect": {}}}, 1)
+    with pytest.raises(SimConfigError, match="k2_ug_per_g2"):
+        build_calibration_simulator(
             {"site": SITE, "effects": {"accel_quadratic_nonlinearity": {"k2_ug_per_g2": [1.0, 2.0]}}}, 1)
-    with pytest.raises(simulate.SimConfigError, match="noise.gyro_arw_deg_rth"):
-        simulate.build_calibration_simulator({"site": SITE, "noise": {"gyro_arw_deg_rth": -1.0}}, 1)
+    with pytest.raises(SimConfigError, match="noise.gyro_arw_deg_rth"):
+        build_calibration_simulator({"site": SITE, "noise": {"gyro_arw_deg_rth": -1.0}}, 1)
 
 
 def test_sensor_override():
-    sim = simulate.build_calibration_simulator(
+    sim = build_calibration_simulator(
         {**TINY, "sensor": {"accel": {"K": [1e4, 1e4, 1e4], "b": [0, 0, 0]}, "gyro": {"E": [0.0] * 6}}}, 1)
     np.testing.assert_array_equal(sim.accel.K, [1e4, 1e4, 1e4])
     np.testing.assert_array_equal(sim.accel.E, ACC.E)  # untouched parts keep the Liu 2021 truth
@@ -305,7 +309,7 @@ def test_sensor_override():
 # ---- effects --------------------------------------------------------------------------------------
 
 def _run(cfg, seed=3):
-    sim = simulate.build_calibration_simulator(cfg, seed)
+    sim = build_calibration_simulator(cfg, seed)
     ch = sim.engine().next(sim.n_samples)
     return sim, ch
 
@@ -446,7 +450,7 @@ def test_effect_temperature(base, tmp_path):
     sim0, ch0 = base
     sim1, ch1 = _with("temperature_sensitivity")
     p = effects.REGISTRY["temperature_sensitivity"].defaults
-    prof = simulate.TEMPERATURE_DEFAULTS
+    prof = TEMPERATURE_DEFAULTS
     for s, k in _static_segments(sim1):
         if s.kind != "static":
             continue
@@ -490,10 +494,10 @@ def test_effect_time_offset(base):
 
 def test_conceal_hides_effects(tmp_path):
     eff = {"accel_quadratic_nonlinearity": {}, "time_offset": {"offset_s": 0.02}}
-    shown = simulate.simulate_calibration_session({**TINY, "effects": eff}, 1, tmp_path / "shown.nc")
-    hidden = simulate.simulate_calibration_session({**TINY, "effects": eff, "conceal": True}, 1, tmp_path / "hidden.nc",
-                                                   tmp_path / "hidden.truth.json")
-    plain = simulate.simulate_calibration_session({**TINY, "conceal": True}, 1, tmp_path / "plain.nc")
+    shown = simulate_calibration_session({**TINY, "effects": eff}, 1, tmp_path / "shown.nc")
+    hidden = simulate_calibration_session({**TINY, "effects": eff, "conceal": True}, 1, tmp_path / "hidden.nc",
+                                          tmp_path / "hidden.truth.json")
+    plain = simulate_calibration_session({**TINY, "conceal": True}, 1, tmp_path / "plain.nc")
     with xr.open_dataset(shown) as s:
         assert "accel_quadratic_nonlinearity" in s.attrs["effects_enabled"]  # the check below can fail
     with xr.open_dataset(hidden) as h, xr.open_dataset(plain) as p:
@@ -526,8 +530,8 @@ def _read_all(path):
 
 def test_static_physical_mean_and_noise(tmp_path):
     calls = []
-    p = simulate.simulate_static_session(PHYS, 11, tmp_path / "nav.nc", tmp_path / "nav.truth.json",
-                                         progress=lambda d, n: calls.append((d, n)), chunk_samples=100_000)
+    p = simulate_static_session(PHYS, 11, tmp_path / "nav.nc", tmp_path / "nav.truth.json",
+                                progress=lambda d, n: calls.append((d, n)), chunk_samples=100_000)
     h, dv, dth = _read_all(p)
     n = h.n_samples
     assert n == 180_000 and calls[-1] == (n, n) and h.gyro_units == "rad" and h.accel_units == "m s-1"
@@ -548,7 +552,7 @@ def test_static_physical_mean_and_noise(tmp_path):
 def test_static_physical_white_reading_and_vrw(tmp_path):
     cfg = {**PHYS, "duration_h": 0.1, "gyro_noise": {"model": "white", "white_deg_h": 0.001},
            "accel_vrw_ug_rthz": 20.0}
-    h, dv, dth = _read_all(simulate.simulate_static_session(cfg, 5, tmp_path / "w.nc"))
+    h, dv, dth = _read_all(simulate_static_session(cfg, 5, tmp_path / "w.nc"))
     np.testing.assert_allclose(dth.std(0), 0.001 * earth.DEG_PER_H * DT, rtol=0.03)
     np.testing.assert_allclose(dv.std(0), 20e-6 * STANDARD_GRAVITY * math.sqrt(DT), rtol=0.03)
 
@@ -558,10 +562,10 @@ def test_static_physical_white_reading_and_vrw(tmp_path):
 def test_static_chunk_size_independent(tmp_path, mode, effect):
     cfg = {**PHYS, "duration_h": 0.25, "mode": mode}  # 90,000 samples: crosses a noise block
     if mode == "counts":
-        cfg = {k: v for k, v in cfg.items() if k in simulate.STATIC_COUNTS_DEFAULTS}
+        cfg = {k: v for k, v in cfg.items() if k in STATIC_COUNTS_DEFAULTS}
         cfg["effects"] = {effect: {}} if effect else {}
-    a = _read_all(simulate.simulate_static_session(cfg, 3, tmp_path / "a.nc", chunk_samples=7_777))
-    b = _read_all(simulate.simulate_static_session(cfg, 3, tmp_path / "b.nc", chunk_samples=1 << 20))
+    a = _read_all(simulate_static_session(cfg, 3, tmp_path / "a.nc", chunk_samples=7_777))
+    b = _read_all(simulate_static_session(cfg, 3, tmp_path / "b.nc", chunk_samples=1 << 20))
     np.testing.assert_array_equal(a[1], b[1])
     np.testing.assert_array_equal(a[2], b[2])
 
@@ -569,7 +573,7 @@ def test_static_chunk_size_independent(tmp_path, mode, effect):
 def test_static_counts_matches_unit(tmp_path):
     cfg = {"site": SITE, "mode": "counts", "duration_h": 0.1, "sample_rate_hz": FS,
            "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}, "noise": QUIET}
-    p = simulate.simulate_static_session(cfg, 2, tmp_path / "s.nc", tmp_path / "s.truth.json")
+    p = simulate_static_session(cfg, 2, tmp_path / "s.nc", tmp_path / "s.truth.json")
     ds = recording.load(p)
     assert ds["accel"].dtype == np.int32 and "temperature" in ds
     n = ds.sizes["time"]
@@ -603,16 +607,16 @@ def test_gyro_sees_the_transitions(quiet):
 
 # ---- in-memory sessions (the z-score study) ----------------------------------------------------------
 
-@pytest.mark.parametrize("effect,chunk", [(None, simulate.NOISE_BLOCK), (None, 7_777),
-                                          ("temperature_sensitivity", simulate.NOISE_BLOCK),
+@pytest.mark.parametrize("effect,chunk", [(None, NOISE_BLOCK), (None, 7_777),
+                                          ("temperature_sensitivity", NOISE_BLOCK),
                                           ("bias_drift", 50_000)])
 def test_static_counts_dataset_is_the_loaded_file(tmp_path, effect, chunk):
     """``static_counts_dataset`` is what ``recording.load`` returns for the file of ``simulate_static_session``
     (counts mode): the same samples, dtypes, variables and attributes, for any generation chunk."""
     cfg = {"site": SITE, "mode": "counts", "duration_h": 0.25, "sample_rate_hz": FS,  # crosses a noise block
            "attitude_deg": {"pitch": 2.0, "roll": -3.0, "yaw": 40.0}, "effects": {effect: {}} if effect else {}}
-    p = simulate.simulate_static_session(cfg, 11, tmp_path / "s.nc")
-    a, b = simulate.static_counts_dataset(cfg, 11, chunk_samples=chunk, path=p), recording.load(p)
+    p = simulate_static_session(cfg, 11, tmp_path / "s.nc")
+    a, b = static_counts_dataset(cfg, 11, chunk_samples=chunk, path=p), recording.load(p)
     assert sorted(a.variables) == sorted(b.variables)
     for v in a.variables:
         assert a[v].dtype == b[v].dtype and a[v].dims == b[v].dims and a[v].attrs == b[v].attrs, v
@@ -620,22 +624,22 @@ def test_static_counts_dataset_is_the_loaded_file(tmp_path, effect, chunk):
     assert set(a.attrs) == set(b.attrs)
     for k in a.attrs:
         assert type(a.attrs[k]) is type(b.attrs[k]) and np.array_equal(a.attrs[k], b.attrs[k]), k
-    with pytest.raises(simulate.SimConfigError):
-        simulate.static_counts_dataset({**cfg, "mode": "physical"}, 11)
+    with pytest.raises(SimConfigError):
+        static_counts_dataset({**cfg, "mode": "physical"}, 11)
 
 
 def test_calibration_session_dataset_for_another_seed(noisy):
     """The clean increments and the seed-independent channels of one simulator serve every noise seed: the
     dataset for seed 7 from a simulator of seed 3 has the samples of the file written for seed 7."""
     _, ds, _ = noisy
-    sim = simulate.build_calibration_simulator(SHORT, 3)
-    mem = simulate.calibration_session_dataset(sim, 7, sim.clean_increments(),
-                                               simulate.calibration_session_channels(sim))
+    sim = build_calibration_simulator(SHORT, 3)
+    mem = calibration_session_dataset(sim, 7, sim.clean_increments(),
+                                      calibration_session_channels(sim))
     for v in ("accel", "gyro", "temperature", "segment_index", "table_angle", "time", "rotation_rate",
               "nominal_attitude"):
         assert mem[v].dtype == ds[v].dtype, v
         np.testing.assert_array_equal(mem[v].values, ds[v].values, err_msg=v)
-    own = simulate.calibration_session_dataset(sim)  # the simulator's own seed, everything computed here
+    own = calibration_session_dataset(sim)  # the simulator's own seed, everything computed here
     assert not np.array_equal(own["accel"].values, ds["accel"].values)
     np.testing.assert_array_equal(own["table_angle"].values, ds["table_angle"].values)
 
@@ -655,7 +659,7 @@ def test_noise_and_count_is_the_stated_recursion(quantize):
         beta, carry = np.full(6, 0.1), np.full(6, 0.3)
         inc = np.empty((n, 6))
         counts = np.empty((n, 6), dtype=np.int64) if quantize else inc
-        simulate._noise_and_count(clean, z, sig_w, a, c, K, dt, beta, carry, quantize, inc, counts)
+        _noise_and_count(clean, z, sig_w, a, c, K, dt, beta, carry, quantize, inc, counts)
         b, r = [0.1] * 6, [0.3] * 6
         want_inc, want_counts = np.empty((n, 6)), np.empty((n, 6), dtype=np.int64)
         for i in range(n):

@@ -11,7 +11,10 @@ import pytest
 import yaml
 
 from calib.io import recording
-from calib.sim import simulator as simulate
+from calib.sim.calibration_session import (build_calibration_simulator, calibration_session_channels,
+                                           calibration_session_dataset)
+from calib.sim.static_session import static_counts_dataset
+from calib.sim.truth import calibration_truth
 from calib.studies import calibration as cs
 from calib.studies import stages
 
@@ -68,14 +71,14 @@ def test_in_memory_recordings_are_the_loaded_files(tmp_path):
     cfg = stages.calibration_cfg(SESSION, SITE)
     stages.simulate_calibration(SESSION, SITE, 77, tmp_path / "s.nc", tmp_path / "s.truth.json")
     loaded = recording.load(tmp_path / "s.nc")
-    sim = simulate.build_calibration_simulator(cfg, 5)  # another seed: only the noise depends on it
-    mem = cs._as_loaded(simulate.calibration_session_dataset(sim, 77, sim.clean_increments(),
-                                                             simulate.calibration_session_channels(sim)),
+    sim = build_calibration_simulator(cfg, 5)  # another seed: only the noise depends on it
+    mem = cs._as_loaded(calibration_session_dataset(sim, 77, sim.clean_increments(),
+                                                    calibration_session_channels(sim)),
                         tmp_path / "s.nc")
     _assert_same_recording(mem, loaded, ignore_attrs={"calib_version", "git_commit", "made_by_rule", "seed",
                                                       "config_hash"})
     truth = json.loads((tmp_path / "s.truth.json").read_text())
-    mine = json.loads(json.dumps(simulate.calibration_truth(simulate.build_calibration_simulator(cfg, 77))))
+    mine = json.loads(json.dumps(calibration_truth(build_calibration_simulator(cfg, 77))))
     truth.pop("generation_time_s")
     mine.pop("generation_time_s")
     assert mine == truth
@@ -83,7 +86,7 @@ def test_in_memory_recordings_are_the_loaded_files(tmp_path):
     scfg = stages.static_check_cfg(CHECK, SESSION, SITE)
     stages.simulate_static_check(CHECK, SESSION, SITE, 88, tmp_path / "l.nc", tmp_path / "l.truth.json")
     loaded = recording.load(tmp_path / "l.nc")
-    mem = simulate.static_counts_dataset(scfg, 88, path=tmp_path / "l.nc")
+    mem = static_counts_dataset(scfg, 88, path=tmp_path / "l.nc")
     _assert_same_recording(mem, loaded)
 
 

@@ -23,7 +23,7 @@ Model (the linear stationary error model of :mod:`calib.nav.errormodel`, vertica
   white gyro rate noise (angle random walk, PSD ``q_gyro`` [rad^2/s] per axis) and white accelerometer noise
   (velocity random walk, PSD ``q_accel`` [m^2/s^3] per axis) propagated through the same model, plus an
   optional white measurement noise on each observed channel. The physical static session of
-  :func:`calib.sim.simulator.simulate_static_session` draws no bias instability, so there is none here.
+  :func:`calib.sim.static_session.simulate_static_session` draws no bias instability, so there is none here.
 
 The noise is Gaussian and its covariance does not depend on theta, so the Fisher information is
 ``F = J^T Sigma^-1 J`` and the bound is ``CRB = F^-1``. Sigma is never formed and inverted: the noise is written
@@ -45,7 +45,7 @@ import scipy.linalg
 from calib.core import earth
 from calib.core.earth import STANDARD_GRAVITY
 from calib.nav import errormodel
-from calib.sim import simulator
+from calib.sim.settings import STATIC_PHYSICAL_DEFAULTS
 
 PARAMETERS = ("eps_x", "eps_y", "eps_z", "nabla_E", "nabla_N")
 UNITS = ("rad s-1", "rad s-1", "rad s-1", "m s-2", "m s-2")
@@ -92,7 +92,7 @@ def noise_psd(session: dict, sample_rate_hz: float):
     per-sample rate sigma ``white_deg_h``, PSD white^2 dt. Accelerometer ``accel_vrw_ug_rthz``: PSD
     (VRW 1e-6 g0)^2. Missing keys take the simulator's defaults.
     """
-    gn = {**simulator.STATIC_PHYSICAL_DEFAULTS["gyro_noise"], **(session.get("gyro_noise") or {})}
+    gn = {**STATIC_PHYSICAL_DEFAULTS["gyro_noise"], **(session.get("gyro_noise") or {})}
     dt = 1.0 / float(sample_rate_hz)
     if gn["model"] == "arw":
         q_g = (float(gn["arw_deg_rth"]) * earth.DEG / 60.0) ** 2
@@ -100,7 +100,7 @@ def noise_psd(session: dict, sample_rate_hz: float):
         q_g = (float(gn["white_deg_h"]) * earth.DEG_PER_H) ** 2 * dt
     else:
         raise ValueError(f"navigation_session.gyro_noise.model = {gn['model']!r}: expected arw or white")
-    vrw = float(session.get("accel_vrw_ug_rthz", simulator.STATIC_PHYSICAL_DEFAULTS["accel_vrw_ug_rthz"]))
+    vrw = float(session.get("accel_vrw_ug_rthz", STATIC_PHYSICAL_DEFAULTS["accel_vrw_ug_rthz"]))
     return q_g, (vrw * 1e-6 * STANDARD_GRAVITY) ** 2
 
 

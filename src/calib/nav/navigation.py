@@ -19,7 +19,7 @@ Initial conditions (``init``)
 * a :class:`calib.nav.strapdown.NavInit` or a dict ``{"pitch_deg", "roll_deg", "yaw_deg"[, "longitude_deg"]}``
   (e.g. the true attitude from the configuration);
 * ``None`` or ``"attrs"``: the recording's global attributes ``attitude_pitch_deg``, ``attitude_roll_deg``,
-  ``attitude_yaw_deg`` (written by :mod:`calib.sim.simulator`) or else the first ``nominal_attitude`` of its
+  ``attitude_yaw_deg`` (written by :mod:`calib.sim.static_session`) or else the first ``nominal_attitude`` of its
   segment table; ``longitude_deg`` if present (else 0);
 * ``"align"``: coarse + fine self-alignment on the first ``align_window_s`` of the recording
   (:mod:`calib.nav.alignment`; the base must be stationary during that window).

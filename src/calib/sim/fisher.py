@@ -11,7 +11,8 @@ Model (per channel c of the six, accelerometer x, y, z then gyro x, y, z; sample
 
     counts_k = mu_k(theta, eta) + K_c (sigma_w z_k + beta_k dt) + (r_k-1 - r_k)
 
-* ``mu``: the noise-free increments of the session (:meth:`calib.sim.simulator.CalibrationSimulator.clean_increments`)
+* ``mu``: the noise-free increments of the session
+  (:meth:`calib.sim.calibration_session.CalibrationSimulator.clean_increments`)
   with the effect made by :mod:`calib.sim.physical` (or, for ``latitude_error`` / ``gravity_error``, by the
   simulator's world); ``theta``: the effect's parameters; ``eta``: the nuisance parameters of the base model
   ``N = K E x + b`` (Liu 2021 eqs. 1-4: 3 scale factors, 6 misalignments, 3 biases per triad), whose
@@ -37,7 +38,9 @@ import math
 import numpy as np
 
 from calib.sim import effects as sim_effects
-from calib.sim import physical, simulator
+from calib.sim import physical
+from calib.sim.calibration_session import build_calibration_simulator
+from calib.sim.counts_engine import noise_terms, temperature_profile
 
 AXES = ("x", "y", "z")
 #: parameters that fix the form of an effect, not its size (held at their true values)
@@ -58,7 +61,7 @@ def noise_spectrum(sim, n: int) -> np.ndarray:
     dt = 1.0 / float(sim.sample_rate_hz)
     nz = sim.noise
     K = np.concatenate([sim.accel.K, sim.gyro.K])
-    sig_w, sig_b, tau = simulator.noise_terms(nz, dt)
+    sig_w, sig_b, tau = noise_terms(nz, dt)
     w = 2.0 * math.pi * np.arange(n // 2 + 1) / n
     S = np.empty((6, w.size))
     for c in range(6):
@@ -125,7 +128,7 @@ def _effect_columns(cfg: dict, sim, clean, eid: str, params: dict, temperature):
             if eid in WORLD_EFFECTS:
                 c = copy.deepcopy(cfg)
                 c["effects"] = {eid: p}
-                out.append(simulator.build_calibration_simulator(c, 0).clean_increments())
+                out.append(build_calibration_simulator(c, 0).clean_increments())
             else:
                 out.append(physical.inject(sim, clean, {eid: p}, temperature))
         d = (out[0] - out[1]) / (2.0 * h)
@@ -221,12 +224,12 @@ def information_for(cfg: dict, effect_id: str, params: dict | None = None, sim=N
     cfg = copy.deepcopy(cfg)
     cfg["effects"] = {k: v for k, v in (cfg.get("effects") or {}).items() if k != effect_id}
     if sim is None:
-        sim = simulator.build_calibration_simulator(cfg, 0)
+        sim = build_calibration_simulator(cfg, 0)
         clean = sim.clean_increments()
     n = len(clean)
     if temperature is None:
         dt = 1.0 / float(sim.sample_rate_hz)
-        temperature = simulator.temperature_profile((np.arange(n) + 0.5) * dt, sim.temperature)
+        temperature = temperature_profile((np.arange(n) + 0.5) * dt, sim.temperature)
     full = sim_effects.resolve({effect_id: params or {}})[effect_id]
     full = {k: v for k, v in full.items() if k != "enabled"}
     enames, ecols = _effect_columns(cfg, sim, clean, effect_id, full, temperature)

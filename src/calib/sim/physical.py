@@ -143,7 +143,7 @@ def _shift_stream(inc, dt, offset_s):
 
 def inject(sim, clean: np.ndarray, resolved: dict, temperature: np.ndarray | None = None) -> np.ndarray:
     """Noise-free increments ``clean`` (n, 6) [count] of ``sim`` (a
-    :class:`calib.sim.simulator.CalibrationSimulator` built *without* these effects) with the effects of
+    :class:`calib.sim.calibration_session.CalibrationSimulator` built *without* these effects) with the effects of
     ``resolved`` (``{id: full parameters}``, :func:`calib.sim.effects.resolve`) made by this module's physical
     path. ``temperature`` (n,) [degC]: the recorded channel, needed by ``temperature_sensitivity``."""
     unknown = set(resolved) - set(EFFECTS)

@@ -3,8 +3,8 @@
 The diagnosis (:mod:`calib.diagnosis`) fits the signatures of the terms of :mod:`calib.sim.effects`. A proof that
 it says "not understood" when the data holds something else needs effects made by a code path it does not share:
 this module. Each effect changes the noise-free increments of a session
-(:meth:`calib.sim.simulator.CalibrationSimulator.clean_increments`, ``int N dt`` per sample, accel then gyro, in
-counts) through the unit's true linear model ``N = K E x + b`` (:class:`calib.core.triad.TriadModel`; inputs
+(:meth:`calib.sim.calibration_session.CalibrationSimulator.clean_increments`, ``int N dt`` per sample, accel then
+gyro, in counts) through the unit's true linear model ``N = K E x + b`` (:class:`calib.core.triad.TriadModel`; inputs
 ``x`` in g and deg/h, Liu 2021 eqs. 1-4): the input is recovered from the clean output, changed, and mapped back.
 The sensor noise and the pulse counter then run on the changed increments as on any other session, so the noise
 is the simulator's own.

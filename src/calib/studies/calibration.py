@@ -28,7 +28,10 @@ from calib.core.triad import PARAM_NAMES, TriadModel
 from calib.studies import stages
 from calib.core import seeds
 from calib.io.atomic import json_default, make_folder, scratch_folder, strict_json, write_json, write_text
-from calib.sim import simulator as simulate
+from calib.sim.calibration_session import (build_calibration_simulator, calibration_session_channels,
+                                           calibration_session_dataset)
+from calib.sim.static_session import static_counts_dataset
+from calib.sim.truth import calibration_truth
 
 #: how the DE variants of Liu 2021 map to the figures
 FIGURE_OF = {"de_rand1": 2, "de_current_to_best1": 3, "de_integration": 4, "ide": 5}
@@ -525,10 +528,10 @@ def _z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files: bo
            "shared": shared, "workdir": Path(workdir), "files": bool(files)}
     if not files:
         cfg = stages.calibration_cfg(session, site)
-        sim = simulate.build_calibration_simulator(cfg, seeds.child_seed(seed0, "session", 0))
+        sim = build_calibration_simulator(cfg, seeds.child_seed(seed0, "session", 0))
         # the truth sidecar as read back from its JSON file (floats round-trip exactly through JSON)
-        truth = json.loads(json.dumps(strict_json(simulate.calibration_truth(sim)), default=json_default))
-        ctx.update(sim=sim, clean=sim.clean_increments(), channels=simulate.calibration_session_channels(sim),
+        truth = json.loads(json.dumps(strict_json(calibration_truth(sim)), default=json_default))
+        ctx.update(sim=sim, clean=sim.clean_increments(), channels=calibration_session_channels(sim),
                    truth=truth,
                    static_cfg=stages.static_check_cfg(check, session, site) if mode == "per_seed" else None)
     return ctx
@@ -549,8 +552,8 @@ def _z_seed(k: int):
         tru.unlink()
     else:
         truth = c["truth"]
-        inp = segments.extract(_as_loaded(simulate.calibration_session_dataset(c["sim"], seed_k, c["clean"],
-                                                                               c["channels"]), rec))
+        inp = segments.extract(_as_loaded(calibration_session_dataset(c["sim"], seed_k, c["clean"],
+                                                                      c["channels"]), rec))
     noise = None
     if mode == "per_seed":
         lrec, ltru = workdir / f"l{k}.nc", workdir / f"l{k}.truth.json"
@@ -561,7 +564,7 @@ def _z_seed(k: int):
             lrec.unlink()
             ltru.unlink()
         else:
-            noise = noise_models(inp, simulate.static_counts_dataset(c["static_cfg"], lseed, path=lrec), ccfg)
+            noise = noise_models(inp, static_counts_dataset(c["static_cfg"], lseed, path=lrec), ccfg)
     elif mode == "shared":
         noise = noise_models(inp, c["shared"], ccfg)
     ta = truth_vector(truth, "accel")

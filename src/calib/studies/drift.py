@@ -28,7 +28,7 @@ from calib.io.atomic import scratch_folder
 from calib.io.netcdf import write_netcdf
 from calib.core.progress import Progress
 from calib.nav import errormodel
-from calib.sim import simulator as simulate
+from calib.sim.static_session import simulate_static_session
 from calib.signal import allan
 from calib.core.rotations import dcm_to_euler
 from calib.core import seeds
@@ -420,7 +420,7 @@ def _noise_seeds(out_nc, out_csv, fig, metrics_path, session, site, dcfg, n_seed
     for k in range(n_seeds):
         path = workdir / f"seed{k}.nc"
         try:
-            simulate.simulate_static_session(cfg, seeds.child_seed(seed0, "session", k), path)
+            simulate_static_session(cfg, seeds.child_seed(seed0, "session", k), path)
             win = drift.load_window(path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
         finally:   # also when interrupted: no seed file is left behind
             path.unlink(missing_ok=True)

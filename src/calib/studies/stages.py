@@ -10,7 +10,8 @@ import time
 from calib.core.seeds import SESSIONS, session_seed  # noqa: F401 - re-exported (the CLI, tests)
 from calib.core.progress import Progress
 from calib.io.netcdf import provenance
-from calib.sim import simulator as simulate
+from calib.sim.calibration_session import simulate_calibration_session
+from calib.sim.static_session import simulate_static_session
 
 CAL_SESSION_KEYS = ("sample_rate_hz", "dwell_s", "step_deg", "positions_per_phase", "rotation_rates_deg_s",
                     "revolutions", "rotation_axes", "transition_s", "move_rate_deg_s", "sensor", "noise", "effects",
@@ -41,7 +42,7 @@ def simulate_calibration(session: dict, site: dict, seed: int, out, truth, rule=
 
     cfg = calibration_cfg(session, site)
     t = time.perf_counter()
-    simulate.simulate_calibration_session(cfg, seed, out, truth, prov=provenance(rule, cfg, seed))
+    simulate_calibration_session(cfg, seed, out, truth, prov=provenance(rule, cfg, seed))
     print(f"wrote {out} in {time.perf_counter() - t:.1f} s")
 
 
@@ -50,8 +51,8 @@ def simulate_static_check(check: dict, session: dict, site: dict, seed: int, out
 
     cfg = static_check_cfg(check, session, site)
     bar = Progress(1, "static check")
-    simulate.simulate_static_session(cfg, seed, out, truth, prov=provenance(rule, cfg, seed),
-                                     progress=lambda d, n: (setattr(bar, "total", n), bar(d)))
+    simulate_static_session(cfg, seed, out, truth, prov=provenance(rule, cfg, seed),
+                            progress=lambda d, n: (setattr(bar, "total", n), bar(d)))
 
 
 def simulate_navigation(session: dict, site: dict, seed: int, out, truth, rule="cli"):
@@ -60,5 +61,5 @@ def simulate_navigation(session: dict, site: dict, seed: int, out, truth, rule="
     cfg = dict(session)
     cfg.update(mode="physical", site=_site(site))
     bar = Progress(1, "navigation session")
-    simulate.simulate_static_session(cfg, seed, out, truth, prov=provenance(rule, cfg, seed),
-                                     progress=lambda d, n: (setattr(bar, "total", n), bar(d)))
+    simulate_static_session(cfg, seed, out, truth, prov=provenance(rule, cfg, seed),
+                            progress=lambda d, n: (setattr(bar, "total", n), bar(d)))
