@@ -35,11 +35,12 @@ def _files(folder: Path) -> dict:
 
 
 def test_proof_gathered_from_session_and_scan_jobs_equals_one_run(tmp_path):
-    """A null session and a single effect with its power scan (two seeds each): the sessions run one by one, the
-    scan from the session's written result, then gathered; every product the same as the one-process stage."""
+    """A null session and a single effect with its power scan (two seeds each), each session a job of its own (the
+    scan from the session's result), then gathered in another order: every product the same as the one-process
+    stage."""
     names = ["null_a", "time_offset"]
-    assert proof_sessions.power_session_names(names, 2) == ["time_offset"]
-    assert proof_sessions.power_session_names(names, 0) == []
+    assert proof_sessions.session_names([]) == list(proof_sessions.PROOF_SESSIONS)
+    assert proof_sessions.session_names(names) == names
     prov = provenance("diagnosis_proof", {"n_seeds": 2}, seed=7)
     one = tmp_path / "one"
     diagnosis_study.proof_stage(one, n_seeds=2, first_seed=7, sessions=names, power_seeds=2, workers=1, base=SHORT,
@@ -47,14 +48,12 @@ def test_proof_gathered_from_session_and_scan_jobs_equals_one_run(tmp_path):
 
     parts, gathered = tmp_path / "parts", tmp_path / "gathered"
     for nm in names:
-        diagnosis_study.proof_session_stage(nm, parts / "sessions" / nm, 2, 7, base=SHORT, site=SITE,
+        diagnosis_study.proof_session_stage(nm, parts / nm, 2, 7, base=SHORT, site=SITE, power_seeds=2,
                                             log=lambda *a: None)
-    # the scan reads the session's result as the gathering job does: from its file
-    diagnosis_study.power_scan_stage(parts / "sessions" / "time_offset", parts / "power" / "time_offset.json", 2, 7,
-                                     base=SHORT, site=SITE, log=lambda *a: None)
-    diagnosis_study.proof_gather_stage(gathered, [parts / "sessions" / nm for nm in reversed(names)],
-                                       [parts / "power" / "time_offset.json"], 2, 7, sessions=names, power_seeds=2,
-                                       prov=prov, metrics_path=gathered / "proof.metrics.json", log=lambda *a: None)
+    assert (parts / "time_offset" / "power.json").is_file() and not (parts / "null_a" / "power.json").exists()
+    diagnosis_study.proof_gather_stage(gathered, [parts / nm for nm in reversed(names)], 2, 7, sessions=names,
+                                       power_seeds=2, prov=prov, metrics_path=gathered / "proof.metrics.json",
+                                       log=lambda *a: None)
     a, b = _files(one), _files(gathered)
     assert sorted(a) == sorted(b)
     assert {"proof.json", "proof.csv", "proof.md", "power.csv", "power.png", "proof_rows.json",
@@ -65,8 +64,8 @@ def test_proof_gathered_from_session_and_scan_jobs_equals_one_run(tmp_path):
         assert "power_scale" in y   # the scan is in the gathered netCDF
     # a session missing from the parts is refused, naming it
     with pytest.raises(ValueError, match="null_a"):
-        diagnosis_study.proof_gather_stage(tmp_path / "short", [parts / "sessions" / "time_offset"], [], 2, 7,
-                                           sessions=names, log=lambda *a: None)
+        diagnosis_study.proof_gather_stage(tmp_path / "short", [parts / "time_offset"], 2, 7, sessions=names,
+                                           log=lambda *a: None)
 
 
 @pytest.fixture(scope="module")

@@ -1,14 +1,12 @@
 # Diagnosis stage: does the base sensor model fit the recording, and if not, which physics is missing?
 # `diagnose` runs on the study's recording (the synthetic calibration session, or the imported one of a
-# real-recording study); the concealed-effect proof (results/proof/) runs as one job per proof session
-# (`diagnosis_proof_session`) and per detection-power scan (`diagnosis_proof_power`), gathered by
-# `diagnosis_proof`; the real-recording proof as one job per recording (`diagnosis_real_proof_recording`),
-# gathered by `diagnosis_real_proof`; `diagnosis_real` diagnoses every shared real recording and one with a known
+# real-recording study); the concealed-effect proof (results/proof/) runs as one job per proof session with its
+# detection-power scan (`diagnosis_proof_session`), gathered by `diagnosis_proof`; the real-recording proof as one
+# job per recording (`diagnosis_real_proof_recording`), gathered by `diagnosis_real_proof`; `diagnosis_real` diagnoses every shared real recording and one with a known
 # term injected. The jobs' parts are temporary: the gathered products are those of one job running them all.
 from calib.studies import proof_sessions as _proof_sessions  # plain data: no numerical import when parsing
 
 PROOF_NAMES = _proof_sessions.session_names(DIAG.get("proof", {}).get("sessions"))
-POWER_NAMES = _proof_sessions.power_session_names(PROOF_NAMES, DIAG.get("proof", {}).get("power_seeds", 0))
 # the real recordings of the proof (config/import/*.yaml, or the configured subset; an unknown name is refused by
 # the gathering job, which names the known ones)
 _REAL_PROOF_ALL = sorted(os.path.splitext(os.path.basename(p))[0] for p in glob.glob("config/import/*.yaml"))
@@ -42,7 +40,8 @@ rule diagnose:
 
 
 rule diagnosis_proof_session:
-    """One concealed-effect session diagnosed blind over its noise seeds (a job per session)."""
+    """One concealed-effect session diagnosed blind over its noise seeds, and its detection-power scan when it hides
+    a single effect (a job per session)."""
     input:
         noise_record=f"{R}/data/static_check.nc",   # the unit's long static record: measured slow noise
     output:
@@ -64,36 +63,11 @@ rule diagnosis_proof_session:
         "../scripts/diagnosis_proof_session.py"
 
 
-rule diagnosis_proof_power:
-    """The detection-power scan of one single-effect session (its magnitudes from the session's own result)."""
-    input:
-        session=f"{R}/proof/parts/sessions/{{proof_session}}",
-        noise_record=f"{R}/data/static_check.nc",
-    output:
-        part=temp(f"{R}/proof/parts/power/{{proof_session}}.json"),
-    params:
-        proof=lambda w: DIAG["proof"],
-        settings=lambda w: DIAG.get("settings", {}),
-        seed=config["seeds"]["diagnosis"],
-        session=sub("calibration_session"),
-        site=sub("site"),
-    threads: 1
-    log:
-        f"{R}/logs/diagnosis_proof/{{proof_session}}.power.log",
-    benchmark:
-        f"{R}/benchmarks/diagnosis_proof_power.{{proof_session}}.tsv"
-    conda:
-        "../envs/calib.yaml"
-    script:
-        "../scripts/diagnosis_proof_power.py"
-
-
 rule diagnosis_proof:
     """Concealed-effect sessions diagnosed blind over many noise seeds; detection power (gathered from the
-    sessions' and scans' jobs)."""
+    sessions' jobs)."""
     input:
         sessions=expand(f"{R}/proof/parts/sessions/{{proof_session}}", proof_session=PROOF_NAMES),
-        power=expand(f"{R}/proof/parts/power/{{proof_session}}.json", proof_session=POWER_NAMES),
     output:
         proof=f"{R}/proof/proof.json",
         table=report(f"{R}/proof/proof.csv", category="6 Diagnosis", caption="../report/proof.rst"),

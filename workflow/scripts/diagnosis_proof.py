@@ -1,5 +1,5 @@
 """Rule diagnosis_proof: the concealed-effect proof over noise seeds, with detection power, gathered from the jobs
-of rules diagnosis_proof_session and diagnosis_proof_power."""
+of rule diagnosis_proof_session."""
 from calib.studies import diagnosis as diagnosis_study
 from calib.core import progress as runlog
 from calib.io.netcdf import provenance
@@ -7,8 +7,8 @@ from calib.io.netcdf import provenance
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):
     pr = p.proof
-    diagnosis_study.proof_gather_stage(p.out, list(snakemake.input.sessions), list(snakemake.input.power),
-                                       pr["n_seeds"], p.seed, pr.get("sessions") or None, pr["power_seeds"],
+    diagnosis_study.proof_gather_stage(p.out, list(snakemake.input.sessions), pr["n_seeds"], p.seed,
+                                       pr.get("sessions") or None, pr["power_seeds"],
                                        prov=provenance(snakemake.rule, dict(p.items()), seed=p.seed),
                                        metrics_path=snakemake.output.metrics, enforce=pr.get("enforce", True),
                                        injection=pr.get("injection", "physical"))

@@ -1,4 +1,5 @@
-"""Rule diagnosis_proof_session: one session of the concealed-effect proof over its noise seeds."""
+"""Rule diagnosis_proof_session: one session of the concealed-effect proof over its noise seeds, with its
+detection-power scan."""
 from calib.core import progress as runlog
 from calib.studies import diagnosis as diagnosis_study
 
@@ -8,4 +9,4 @@ with runlog.to_file(snakemake.log[0]):
     settings = {**p.settings, "noise_record": snakemake.input.noise_record}  # the unit's measured slow noise
     diagnosis_study.proof_session_stage(snakemake.wildcards.proof_session, snakemake.output.part, pr["n_seeds"],
                                         p.seed, settings, base=p.session, site=p.site,
-                                        injection=pr.get("injection", "physical"))
+                                        power_seeds=pr["power_seeds"], injection=pr.get("injection", "physical"))

@@ -9,8 +9,8 @@ science lives in :mod:`calib.diagnosis`; this module only runs it and writes the
   netCDF of every seed's outcome (dims ``session``, ``seed``), the detection-power table and figure
   (``power.csv``, ``power.png``: detection rate against the injected magnitude, the 80 % line), the proof
   table (``proof.csv``, ``proof.md``) and metrics. Wall times go to ``timings.json`` only. The workflow runs
-  the same proof as one job per session (``proof_session_stage``) and per power scan (``power_scan_stage``)
-  and gathers them (``proof_gather_stage``) into the same files.
+  the same proof as one job per session with its power scan (``proof_session_stage``) and gathers them
+  (``proof_gather_stage``) into the same files.
 * ``real_stage``: :func:`calib.studies.diagnosis_real.run_real` on every shared recording plus the injection test.
 """
 from __future__ import annotations
@@ -237,65 +237,55 @@ def _proof_base(base, site):
 
 
 def proof_session_stage(name: str, part_dir, n_seeds: int, first_seed: int, settings=None, base=None, site=None,
-                        injection: str = "physical", log=print) -> dict:
+                        power_seeds: int = 0, injection: str = "physical", log=print) -> dict:
     """One session of the proof as a job of its own (the workflow scatters the proof by session): into
     ``part_dir`` its result (``result.json``, :func:`calib.studies.diagnosis_proof.write_part`), its end-to-end
-    report (``end_to_end/<name>/``) and its residual figure (``figures/``), for :func:`proof_gather_stage`."""
+    report (``end_to_end/<name>/``), its residual figure (``figures/``) and, for a single effect with
+    ``power_seeds``, its detection-power scan (``power.json``; its magnitudes follow from the session's result),
+    for :func:`proof_gather_stage`."""
     st = check_settings(settings)
     _proof_names([name])
     part_dir = Path(part_dir)
+    base = _proof_base(base, site)
     log(f"proof session {name}: {n_seeds} seeds (first seed {first_seed}), library effects made by the "
         f"{injection} path")
-    r = proof.proof_session(name, part_dir, n_seeds, first_seed, settings=st, base=_proof_base(base, site),
-                            injection=injection)
-    proof.write_part(r, part_dir / "result.json")
+    r = proof.proof_session(name, part_dir, n_seeds, first_seed, settings=st, base=base, injection=injection)
     log(f"{name}: {sum(bool(x['correct']) for x in r['rows'])}/{len(r['rows'])} correct, {r['t_total_s']:.1f} s")
+    scan = proof.power_scan(r, power_seeds, first_seed, settings=st, base=base, injection=injection,
+                            power_scales="auto" if power_seeds else None)
+    for x in scan:
+        log(f"  power scan, scale {x['scale']:.4g}: {sum(bool(y['correct']) for y in x['rows'])}/{len(x['rows'])} "
+            f"detected, {x['t_total_s']:.1f} s")
+    if scan:
+        proof.write_part(scan, part_dir / "power.json")
+    proof.write_part(r, part_dir / "result.json")   # last: a part with its result is complete
     return r
 
 
-def power_scan_stage(session_part, out_path, power_seeds: int, first_seed: int, settings=None, base=None, site=None,
-                     injection: str = "physical", log=print) -> list:
-    """The detection-power scan of one proof session as a job of its own: reads the session's ``result.json``
-    (its scales follow from the chi-square gain at the proof magnitude) and writes the scan's results to
-    ``out_path`` for :func:`proof_gather_stage`."""
-    st = check_settings(settings)
-    r = proof.read_part(Path(session_part) / "result.json")
-    log(f"power scan of {r['name']}: {power_seeds} seeds per magnitude")
-    scan = proof.power_scan(r, power_seeds, first_seed, settings=st, base=_proof_base(base, site),
-                            injection=injection)
-    proof.write_part(scan, out_path)
-    for x in scan:
-        log(f"  scale {x['scale']:.4g}: {sum(bool(y['correct']) for y in x['rows'])}/{len(x['rows'])} detected")
-    return scan
-
-
-def proof_gather_stage(out_dir, session_parts, power_parts, n_seeds: int, first_seed: int, sessions=None,
-                       power_seeds: int = 0, prov=None, metrics_path=None, log=print, enforce: bool = True,
+def proof_gather_stage(out_dir, session_parts, n_seeds: int, first_seed: int, sessions=None, power_seeds: int = 0,
+                       prov=None, metrics_path=None, log=print, enforce: bool = True,
                        injection: str = "physical") -> dict:
-    """The proof's products from its sessions run as separate jobs (:func:`proof_session_stage`,
-    :func:`power_scan_stage`): the same files as :func:`proof_stage` (the same code turns the sessions' results
-    into them). ``session_parts``: the sessions' part folders, in any order; ``power_parts``: the scans' files."""
+    """The proof's products from its sessions run as separate jobs (:func:`proof_session_stage`): the same files
+    as :func:`proof_stage` (the same code turns the sessions' results into them). ``session_parts``: the sessions'
+    part folders, in any order."""
     names = _proof_names(sessions)
     out_dir = Path(out_dir)
-    main = {}
+    main, scans = {}, {}
     for part in map(Path, session_parts):
         r = proof.read_part(part / "result.json")
         main[r["name"]] = r
+        if (part / "power.json").is_file():
+            scans[r["name"]] = proof.read_part(part / "power.json")
         for sub in ("end_to_end", "figures"):   # the session's report and residual figure, byte for byte
             if (part / sub).is_dir():
                 shutil.copytree(part / sub, out_dir / sub, dirs_exist_ok=True)
     missing = [nm for nm in names if nm not in main]
     if missing:
         raise ValueError(f"diagnosis.proof: no result for session(s) {missing}")
-    scans = {}
-    for path in power_parts:
-        scan = proof.read_part(path)
-        if scan:
-            scans[scan[0]["name"]] = scan
     log(f"proof: {len(names)} sessions x {n_seeds} seeds (first seed {first_seed}), gathered from "
-        f"{len(main)} session jobs and {len(scans)} power scans, library effects made by the {injection} path")
+        f"{len(main)} session jobs ({len(scans)} with a power scan), library effects made by the {injection} path")
     out = proof.assemble_proof(out_dir, names, main, scans, n_seeds, first_seed, injection,
-                               "auto" if power_seeds else None, workers="one job per session and power scan")
+                               "auto" if power_seeds else None, workers="one job per session")
     return _proof_products(out, out_dir, n_seeds, names, prov, metrics_path, log, enforce)
 
 

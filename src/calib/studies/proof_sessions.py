@@ -1,7 +1,7 @@
 """The sessions of the concealed-effect proof (:mod:`calib.studies.diagnosis_proof`): their names, kinds and
-hidden effects, and which of them the workflow splits into jobs. Plain data with no numerical import: the Snakefile
+hidden effects, and the list the workflow makes one job each of. Plain data with no numerical import: the Snakefile
 reads it when it is parsed (every ``snakemake`` process; with a cluster executor, once per job) to make one job per
-proof session and one per detection-power scan."""
+proof session."""
 from __future__ import annotations
 
 #: the proof's sessions: (kind, effects config). Magnitudes: the registry defaults unless noted.
@@ -59,9 +59,3 @@ def session_names(sessions=None) -> list[str]:
     of :data:`PROOF_SESSIONS`. Names are not checked here (the proof refuses an unknown one, naming it)."""
     return list(sessions) if sessions else list(PROOF_SESSIONS)
 
-
-def power_session_names(names, power_seeds: int) -> list[str]:
-    """The sessions of ``names`` that get a detection-power scan: the single-effect ones, when ``power_seeds`` > 0."""
-    if not power_seeds:
-        return []
-    return [nm for nm in names if nm in PROOF_SESSIONS and PROOF_SESSIONS[nm][0] == "single"]
