@@ -56,6 +56,8 @@ import numpy as np
 
 #: samples per side of the robust level (median) on either side of a step
 LEVEL_WINDOW = 201
+#: samples per side of the shorter level: counts near each other and a drop's fraction (a gap) at its own step
+SHORT_WINDOW = 41
 #: a lasting change of the residual of at least this many periods is a shift (drops or a gap)
 SHIFT_MIN = 0.75
 #: a shift within this many periods of a whole number m is m dropped samples
@@ -229,7 +231,7 @@ def _runs(split, n):
     return np.column_stack([starts, stops]).astype(np.int64)
 
 
-def _levels(u, runs):
+def _levels(u, runs, h=LEVEL_WINDOW):
     """The residual's robust level before and after each step ``(before, after)``, each (n - 1,), in periods:
     the median of the :data:`LEVEL_WINDOW` samples up to the step and of those after it, within a run (0 across
     a gap and in runs too short to judge)."""
@@ -237,7 +239,6 @@ def _levels(u, runs):
 
     before, after = np.zeros(len(u) - 1), np.zeros(len(u) - 1)
     judged = np.zeros(len(u) - 1, dtype=bool)
-    h = LEVEL_WINDOW
     for a, b in runs:
         m = b - a
         if m < 4:
@@ -268,32 +269,26 @@ def _levels(u, runs):
     return before, after
 
 
-def _flattest(u, counted, r0, r1):
+def _flattest(u, counted, r0, r1, h):
     """Of the steps ``counted`` (each with a drop counted), the one whose drop, taken back, leaves the residual
-    ``u`` over the region ``[r0, r1)`` and a level window either side flattest (least absolute deviation from
+    ``u`` over the region ``[r0, r1)`` and ``h`` samples either side flattest (least absolute deviation from
     its median): where the stamps that ran ahead come back, not a drop that is real nearby."""
-    lo, hi = max(0, r0 - LEVEL_WINDOW), min(len(u), r1 + 1 + LEVEL_WINDOW)
+    lo, hi = max(0, r0 - h), min(len(u), r1 + 1 + h)
     seg = u[lo:hi]
     pos = np.arange(lo, hi)
     cost = [np.abs(x - np.median(x)).sum() for x in (seg + (pos > c) for c in counted)]
     return int(counted[int(np.argmin(cost))])
 
 
-def _classify(levels, u, ratio, k, gap_mask):
-    """One pass over the places where the residual's level changes (``levels`` from :func:`_levels`).
-
-    First the counts: a region is a stretch of steps where the level changes by more than half a period, and
-    it counts if the change reaches :data:`SHIFT_MIN` somewhere; its rounded largest change is added to the
-    drops there (each where the step is longest over its count) or taken from the drops counted there (each
-    where taking it leaves the residual flattest, :func:`_flattest`). Only when no count changes any more are
-    gaps marked: a counted drop whose step still leaves the level changed by more than :data:`WHOLE_TOL` (a
-    whole number of periods and a fraction), and a drop of the level by :data:`SHIFT_MIN` or more where no
-    drop is counted to take (the stamps jumping back). Returns True if anything changed."""
-    jump = levels[1] - levels[0]
+def _recount(jump, u, ratio, k, gap_mask, h, back):
+    """The counts where the level (over ``h`` samples) changes: a region is a stretch of steps where it changes
+    by more than half a period, and it counts if the change reaches :data:`SHIFT_MIN` somewhere; its rounded
+    largest change is added to the drops there (each where the step is longest over its count) or taken from
+    the drops counted there (each where taking it leaves the residual flattest, :func:`_flattest`); a region
+    going down with no drop to take is put in ``back``. Returns True if a count changed."""
     wide = (np.abs(jump) > 0.5) & ~gap_mask
     edges = np.flatnonzero(np.diff(np.concatenate([[0], wide.astype(np.int8), [0]])))
     changed = False
-    back = []
     peaks = [float(jump[r0 + np.argmax(np.abs(jump[r0:r1]))]) for r0, r1 in zip(edges[::2], edges[1::2])]
     # drops miscounted tilt the line, and with it the level of the residual: a large miscount can make a
     # small change appear elsewhere, so a pass fixes only changes of at least half the largest one
@@ -313,19 +308,40 @@ def _classify(levels, u, ratio, k, gap_mask):
             if not counted.size:
                 back.append(region)
                 break
-            k[_flattest(u, counted, r0, r1)] -= 1
+            k[_flattest(u, counted, r0, r1, h)] -= 1
             changed = True
-    if changed:
-        return True
-    # a hole of more than MAX_DROP_RUN periods that the level keeps (no burst pays it back): a gap, split
-    # before the gaps below, so that the level windows of what is near it do not reach across it
+    return changed
+
+
+def _classify(u, ratio, k, gap_mask):
+    """One pass over the places where the residual ``u`` changes its level (:func:`_levels`).
+
+    First the counts (:func:`_recount`), with the long level window, then with the short one (a burst or a
+    drop near another is resolved there). Only when no count changes any more are gaps marked: a hole of more
+    than :data:`MAX_DROP_RUN` samples that the level keeps; then, one a pass, a counted drop whose step still
+    leaves the level changed by more than :data:`WHOLE_TOL` over both windows (a whole number of periods and a
+    fraction), or a drop of the level by :data:`SHIFT_MIN` or more where no drop is counted to take (the stamps
+    jumping back). Returns True if anything changed."""
+    runs = _runs(gap_mask, len(u))
+    back = []
+    jumps = {}
+    for h in (LEVEL_WINDOW, SHORT_WINDOW):
+        before, after = _levels(u, runs, h)
+        jumps[h] = after - before
+        if _recount(jumps[h], u, ratio, k, gap_mask, h, back):
+            return True
+    jump, jshort = jumps[LEVEL_WINDOW], jumps[SHORT_WINDOW]
+    # a hole that the level keeps (no burst pays it back): a gap, split before the gaps below, so that the level
+    # windows of what is near it do not reach across it
     hole = ((k - 1) > MAX_DROP_RUN) & (np.abs(jump) < WHOLE_TOL) & ~gap_mask
     if hole.any():
         gap_mask |= hole
         return True
     # one gap a pass, the most certain first (a gap's fraction shows in the levels of its neighbours too, until
-    # the split there takes it out of their windows)
-    score = np.where((k > 1) & ~gap_mask, np.abs(jump), 0.0)
+    # the split there takes it out of their windows); the smaller of the two windows' changes, so that a burst
+    # or a drop within the long window but not at the step does not pass for a fraction of this one
+    frac = np.where(np.sign(jshort) == np.sign(jump), np.minimum(np.abs(jump), np.abs(jshort)), 0.0)
+    score = np.where((k > 1) & ~gap_mask, frac, 0.0)
     for region in back:
         j = region[np.argmin(ratio[region])]
         score[j] = max(score[j], abs(jump[j]))
@@ -352,13 +368,13 @@ def fit_clock(t, nominal_rate_hz: float | None = None) -> ClockFit:
         i = int(np.argmax(d <= 0))
         raise ClockError(f"time stamps not strictly increasing at sample {i + 1}")
     med = float(np.median(d))
-    no_split = _runs(np.zeros(n - 1, dtype=bool), n)
     gap_mask = np.zeros(n - 1, dtype=bool)
-    runs = no_split
+    runs = _runs(gap_mask, n)
     # every step one period: the line through the plain sample numbers, if every stamp stays near it
     k = np.ones(n - 1, dtype=np.int64)
     idx = np.arange(n, dtype=np.int64)
-    slope, _, res, _ = _pooled_line(t, idx, runs)
+    fit = _pooled_line(t, idx, runs)
+    slope, res = fit[0], fit[2]
     if not (slope > 0 and np.max(np.abs(res)) < 0.5 * SHIFT_MIN * slope):
         # a first period that counts the steps right: the mean step over steps shorter than 1.5 median steps
         # (bursty stamps: 1.024 and short steps average to the period; drops are left out)
@@ -380,13 +396,14 @@ def fit_clock(t, nominal_rate_hz: float | None = None) -> ClockFit:
             period, _, res, _ = _pooled_line(t, idx, runs)
             ratio = d / period
             u = res / period
-            if not _classify(_levels(u, runs), u, ratio, k, gap_mask):
+            if not _classify(u, ratio, k, gap_mask):
                 break
         gap_mask |= (k - 1) > MAX_DROP_RUN   # a hole in the record, even where the stamps keep to the line
         k = np.where(gap_mask, np.maximum(1, np.rint(np.minimum(d / period, 1e9))).astype(np.int64), k)
-    idx = np.concatenate([[0], np.cumsum(k)]).astype(np.int64)
-    runs = _runs(gap_mask, n)
-    slope, offsets, res, sxx = _pooled_line(t, idx, runs)
+        idx = np.concatenate([[0], np.cumsum(k)]).astype(np.int64)
+        runs = _runs(gap_mask, n)
+        fit = _pooled_line(t, idx, runs)
+    slope, offsets, res, sxx = fit
     dof = n - 1 - len(runs)
     s2 = float(res @ res) / dof if dof > 0 else 0.0
     slope_std = float(np.sqrt(s2 / sxx)) if sxx > 0 else float("inf")

@@ -410,6 +410,8 @@ def _cut(settings, path, accel, gyro, t_rel, window=True):
                    f"{dropouts.MIN_RUN}), or 0 to import runs of identical rows as they are")
     runs = dropouts.find_runs({"accel": None if accel is None else accel[lo:hi],
                                "gyro": None if gyro is None else gyro[lo:hi]}, min_run, offset=lo)
+    # a triad constant throughout is a placeholder, not a dropout: the plausibility check names it as such
+    runs = [r for r in runs if (r.start, r.stop) != (lo, hi)]
     elo, ehi = dropouts.ends(runs, lo, hi)
     stuck = dropouts.inside(runs, elo, ehi)
     if elo >= ehi or stuck:
@@ -460,10 +462,11 @@ def finish(settings, fmt, path, accel, gyro, fs, *, time=None, sources=(), segme
             if clk.gaps:
                 problem, fix = clk.gap_refusal(offset_s=float(t_rel[lo]), first=lo)
                 raise ImportDataError(path, "time", problem, fix)
-            if (lo, hi) != (0, len(t_rel)):   # the rate of the rows imported (else the importer's, the same fit)
-                fs = clk.rate_hz
-            extra.update(clk.attrs())
-            summary.insert(0, f"clock: {clk.summary()}")
+            if "clock_rate_hz" in extra:   # stamps the importer fitted its rate to (not times made from a rate)
+                if (lo, hi) != (0, len(t_rel)):   # the rate of the rows imported (else the importer's, the same)
+                    fs = clk.rate_hz
+                extra.update(clk.attrs())
+                summary.insert(0, f"clock: {clk.summary()}")
         if summary:
             extra["import_summary"] = "; ".join(([extra["import_summary"]] if extra.get("import_summary") else [])
                                                 + summary)

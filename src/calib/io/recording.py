@@ -522,7 +522,9 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
                 on_chunk(start, acc, gyr)
             except Exception as exc:  # noqa: BLE001 - not the file's fault: validate raises it as itself
                 raise _OnChunkError() from exc
-    runs = sorted((r for t in track.values() for r in t.finish()), key=lambda r: r.start)
+    # (a triad constant throughout is a placeholder, not a dropout: calib.signal.plausibility names it as such)
+    runs = sorted((r for t in track.values() for r in t.finish() if (r.start, r.stop) != (0, h.n_samples)),
+                  key=lambda r: r.start)
     if runs:
         sensor, problem, fix = dropouts.refusal(runs, 0, h.n_samples, _seconds_from_first(path, h), min_run)
         raise RecordingError(path, sensor, problem, "re-import the file (calib import trims such runs at the ends "
