@@ -23,7 +23,13 @@ turns come from the settings (or the file, where it says so). What *can* be chec
   (:func:`calib.core.clock.fit_clock`: least-squares line of time against the clock index, robust to
   burst arrival, dropped samples counted; the median step is not the rate of a bursty logger), stored with
   its uncertainty, jitter and dropped-sample count as ``clock_*`` attributes; a declared ``sample_rate_hz``
-  must agree within max(5 sigma, 1e-3 relative). Without a time column the declared rate is the rate.
+  must agree within max(5 sigma, 1e-3 relative). Without a time column the declared rate is the rate;
+* clock: jitter (stamps that leave the fitted line and come back) is reported and accepted, dropped samples
+  (whole periods) are counted; a gap (the stamps leave the line for good, or more than 10 samples lost in a
+  row) is refused, naming the ``start_s`` / ``stop_s`` windows either side that import cleanly;
+* dropouts and stuck samples (:mod:`calib.core.dropouts`): 50 or more identical rows of a triad in a row
+  (all-zero rows of a logger stopping, a sensor's output stuck) are trimmed at the ends of the import (said
+  in ``import_summary`` and the attribute ``dropouts_trimmed``) and refused inside, naming the windows.
 
 Every failure raises :class:`ImportDataError` (a :class:`calib.io.recording.RecordingError`, hence a
 ``ValueError``) naming the file, the field and the fix.
@@ -54,6 +60,10 @@ Common to all formats:
     ``approx_zero_count`` (accel counts at zero input, for that check only, default 0),
     ``approx_counts_per_deg_s`` (gyro in counts: enables the turn-angle check).
 ``units_check_tolerance``: relative tolerance of the gravity-norm check (default 0.2).
+``start_s``, ``stop_s``: import only the samples with ``start_s <= t < stop_s``, seconds from the file's
+    first sample (the windows a refusal names for a gap or a stuck run); stored as ``imported_rows``.
+``dropout_min_rows``: fewest identical rows of a triad in a row taken for a dropout or a stuck sensor
+    (default 50; raise it for a sensor filtered far below its output rate, 0 turns the check off).
 
 Per format (see each function for details): ``imu_tk``: ``files: {accel, gyro}``, ``sample_rate_hz``
 (optional nominal rate, checked against the timestamps). ``imucal``: ``file``, ``segments_file`` or
@@ -63,7 +73,8 @@ Per format (see each function for details): ``imu_tk``: ``files: {accel, gyro}``
 ``skip_rows``, ``time: {column, units}`` or ``sample_rate_hz``, ``temperature: {column}``. ``matlab``: ``file``,
 per triad ``variable`` (+ ``columns``) or ``variables``, ``time: {variable, units}``, ``sample_rate_hz`` or
 ``sample_rate_variable``, ``temperature: {variable}`` (:mod:`calib.ingest.matlab`). ``rosbag``: ``file``,
-``topic``, ``time_source``, ``temperature_topic``, ``sample_rate_hz``, ``start_s``, ``stop_s``.
+``topic``, ``time_source``, ``temperature_topic``, ``sample_rate_hz`` (``start_s`` / ``stop_s`` in seconds
+from the bag's first message of the topic).
 """
 from calib.ingest.common import ImportDataError, default_data_root, load_settings
 from calib.ingest.importers import FORMATS, IMPORTERS, import_dataset, import_recording
