@@ -624,8 +624,16 @@ def test_static_counts_dataset_is_the_loaded_file(tmp_path, effect, chunk):
     assert set(a.attrs) == set(b.attrs)
     for k in a.attrs:
         assert type(a.attrs[k]) is type(b.attrs[k]) and np.array_equal(a.attrs[k], b.attrs[k]), k
-    with pytest.raises(SimConfigError):
+    with pytest.raises(SimConfigError, match="static_session.mode: 'physical'"):
         static_counts_dataset({**cfg, "mode": "physical"}, 11)
+
+
+def test_static_counts_dataset_without_a_mode_is_the_counts_session():
+    """The in-memory static record is counts only, so a config that names no mode is a counts session (not
+    refused as the physical mode the caller never asked for): the same record as with ``mode: counts``."""
+    cfg = {"site": SITE, "duration_h": 0.002, "sample_rate_hz": FS}
+    a, b = static_counts_dataset(cfg, 4), static_counts_dataset({**cfg, "mode": "counts"}, 4)
+    assert a.identical(b) and a["accel"].dtype == np.int32 and a.sizes["time"] == round(0.002 * 3600 * FS)
 
 
 def test_calibration_session_dataset_for_another_seed(noisy):

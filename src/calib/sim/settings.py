@@ -65,17 +65,22 @@ CALIBRATION_DEFAULTS = {
     "site": None,
 }
 
-STATIC_COMMON = {"site": None, "mode": "physical", "duration_h": 240.0, "sample_rate_hz": 100.0,
-                 "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}}
+
+def _static_defaults(mode: str) -> dict:
+    """The keys of both static modes; ``mode`` is the mode whose defaults these are."""
+    return {"site": None, "mode": mode, "duration_h": 240.0, "sample_rate_hz": 100.0,
+            "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}}
+
+
 STATIC_PHYSICAL_DEFAULTS = {
-    **STATIC_COMMON,
+    **_static_defaults("physical"),
     "gyro_drift_deg_h": [-0.01, 0.01, 0.01],
     "gyro_noise": {"model": "arw", "arw_deg_rth": 0.001, "white_deg_h": 0.001},
     "accel_bias_m_s2": [0.001, 0.001, 0.001],
     "accel_vrw_ug_rthz": 0.0,
 }
 STATIC_COUNTS_DEFAULTS = {
-    **STATIC_COMMON,
+    **_static_defaults("counts"),
     "sensor": "liu2021",
     "noise": {},
     "effects": {},
