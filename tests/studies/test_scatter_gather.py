@@ -36,8 +36,8 @@ def _files(folder: Path) -> dict:
 
 def test_proof_gathered_from_session_and_scan_jobs_equals_one_run(tmp_path):
     """A null session and a single effect with its power scan (two seeds each), each session a job of its own (the
-    scan from the session's result), then gathered in another order: every product the same as the one-process
-    stage."""
+    scan from the session's result; the second session reads its seeds' noise from the store the first wrote),
+    then gathered in another order: every product the same as the one-process stage."""
     names = ["null_a", "time_offset"]
     assert proof_sessions.session_names([]) == list(proof_sessions.PROOF_SESSIONS)
     assert proof_sessions.session_names(names) == names
@@ -47,10 +47,15 @@ def test_proof_gathered_from_session_and_scan_jobs_equals_one_run(tmp_path):
                                 site=SITE, prov=prov, metrics_path=one / "proof.metrics.json", log=lambda *a: None)
 
     parts, gathered = tmp_path / "parts", tmp_path / "gathered"
+    store = tmp_path / "noise"
+    store.mkdir()
     for nm in names:
         diagnosis_study.proof_session_stage(nm, parts / nm, 2, 7, base=SHORT, site=SITE, power_seeds=2,
-                                            log=lambda *a: None)
+                                            noise_store=store, log=lambda *a: None)
     assert (parts / "time_offset" / "power.json").is_file() and not (parts / "null_a" / "power.json").exists()
+    # the two sessions (one unit) share their seeds' noise through the store: one file per seed -- 2 proof seeds,
+    # 2 power seeds and seed 0, with which the end-to-end file of a session with a physical effect is rewritten
+    assert len(list(store.glob("*.npy"))) == 5 and not list(store.glob("*.part"))
     diagnosis_study.proof_gather_stage(gathered, [parts / nm for nm in reversed(names)], 2, 7, sessions=names,
                                        power_seeds=2, prov=prov, metrics_path=gathered / "proof.metrics.json",
                                        log=lambda *a: None)

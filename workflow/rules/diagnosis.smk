@@ -39,11 +39,26 @@ rule diagnose:
         "../scripts/diagnose.py"
 
 
+rule diagnosis_proof_noise_store:
+    """An empty folder the sessions' jobs share their seeds' noise in (removed when they are done): a seed drawn by
+    one job is read by the others instead of drawn again, as in one process."""
+    output:
+        temp(directory(f"{R}/proof/parts/noise")),
+    localrule: True
+    log:
+        f"{R}/logs/diagnosis_proof/noise_store.log",
+    conda:
+        "../envs/calib.yaml"
+    shell:
+        "mkdir -p {output} 2> {log}"
+
+
 rule diagnosis_proof_session:
     """One concealed-effect session diagnosed blind over its noise seeds, and its detection-power scan when it hides
     a single effect (a job per session)."""
     input:
         noise_record=f"{R}/data/static_check.nc",   # the unit's long static record: measured slow noise
+        noise_store=f"{R}/proof/parts/noise",
     output:
         part=temp(directory(f"{R}/proof/parts/sessions/{{proof_session}}")),
     params:

@@ -9,4 +9,5 @@ with runlog.to_file(snakemake.log[0]):
     settings = {**p.settings, "noise_record": snakemake.input.noise_record}  # the unit's measured slow noise
     diagnosis_study.proof_session_stage(snakemake.wildcards.proof_session, snakemake.output.part, pr["n_seeds"],
                                         p.seed, settings, base=p.session, site=p.site,
-                                        power_seeds=pr["power_seeds"], injection=pr.get("injection", "physical"))
+                                        power_seeds=pr["power_seeds"], injection=pr.get("injection", "physical"),
+                                        noise_store=snakemake.input.noise_store)

@@ -237,22 +237,24 @@ def _proof_base(base, site):
 
 
 def proof_session_stage(name: str, part_dir, n_seeds: int, first_seed: int, settings=None, base=None, site=None,
-                        power_seeds: int = 0, injection: str = "physical", log=print) -> dict:
+                        power_seeds: int = 0, injection: str = "physical", noise_store=None, log=print) -> dict:
     """One session of the proof as a job of its own (the workflow scatters the proof by session): into
     ``part_dir`` its result (``result.json``, :func:`calib.studies.diagnosis_proof.write_part`), its end-to-end
     report (``end_to_end/<name>/``), its residual figure (``figures/``) and, for a single effect with
     ``power_seeds``, its detection-power scan (``power.json``; its magnitudes follow from the session's result),
-    for :func:`proof_gather_stage`."""
+    for :func:`proof_gather_stage`. ``noise_store``: a folder the sessions' jobs share their seeds' noise in
+    (:func:`calib.studies.diagnosis_proof.noise_store`)."""
     st = check_settings(settings)
     _proof_names([name])
     part_dir = Path(part_dir)
     base = _proof_base(base, site)
     log(f"proof session {name}: {n_seeds} seeds (first seed {first_seed}), library effects made by the "
         f"{injection} path")
-    r = proof.proof_session(name, part_dir, n_seeds, first_seed, settings=st, base=base, injection=injection)
+    r = proof.proof_session(name, part_dir, n_seeds, first_seed, settings=st, base=base, injection=injection,
+                            store=noise_store)
     log(f"{name}: {sum(bool(x['correct']) for x in r['rows'])}/{len(r['rows'])} correct, {r['t_total_s']:.1f} s")
     scan = proof.power_scan(r, power_seeds, first_seed, settings=st, base=base, injection=injection,
-                            power_scales="auto" if power_seeds else None)
+                            power_scales="auto" if power_seeds else None, store=noise_store)
     for x in scan:
         log(f"  power scan, scale {x['scale']:.4g}: {sum(bool(y['correct']) for y in x['rows'])}/{len(x['rows'])} "
             f"detected, {x['t_total_s']:.1f} s")
