@@ -36,8 +36,9 @@ shift of size ``delta``:
 The steps are counted first by their length (a step of about k periods: k - 1 drops, when it is longer than
 1.5 periods by more than twice the steps' own scatter); then, pass by pass, the counts are corrected where
 the level changes (a long step that the next ones pay back loses the drops its length suggested) and the
-gaps are marked (:func:`_classify`). Within :data:`LEVEL_WINDOW` samples of a gap, or of the ends, a burst's
-return can pass for part of a shift: what the stamps tell is resolved to that window.
+gaps are marked (:func:`_classify`). Bursts of up to :data:`MAX_DROP_RUN` samples held and sent at once are
+told from drops and gaps (tested over random patterns); within :data:`LEVEL_WINDOW` samples of a gap a burst's
+return can pass for part of it: what the stamps tell is resolved to that window.
 
 When every stamp lies within :data:`SHIFT_MIN` / 2 periods of the line through the plain sample numbers,
 no shift of :data:`SHIFT_MIN` or more can be hidden in it (the line is continuous, so at a shift of ``delta``
@@ -82,7 +83,7 @@ class ClockFit:
     ``index``: clock index of each sample (int64; across a gap advanced by the rounded gap length, for
     reference only). ``dropped_after`` / ``dropped_count``: samples missing between sample j and j + 1.
     ``gaps``: ``(j, step_s)`` for each split between sample j and j + 1. ``runs``: ``[start, stop)`` per run.
-    ``t_first_s``: the first stamp (windows are given in seconds from it).
+    ``stamps``: the time stamps fitted (:meth:`windows` gives seconds from the first).
     """
 
     rate_hz: float
@@ -233,8 +234,8 @@ def _runs(split, n):
 
 def _levels(u, runs, h=LEVEL_WINDOW):
     """The residual's robust level before and after each step ``(before, after)``, each (n - 1,), in periods:
-    the median of the :data:`LEVEL_WINDOW` samples up to the step and of those after it, within a run (0 across
-    a gap and in runs too short to judge)."""
+    the median of the ``h`` samples up to the step and of the ``h`` after it, within a run (fewer near its ends;
+    no change judged across a gap, or with fewer than :data:`EDGE_WINDOW` samples on a side)."""
     from scipy import ndimage  # heavy import (about 0.3 s), needed only for stamps that leave the line
 
     before, after = np.zeros(len(u) - 1), np.zeros(len(u) - 1)
