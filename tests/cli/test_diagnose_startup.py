@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from calib import cli
-from calib.io import recording
+from calib.io import recording, validation
 from calib.sim.calibration_session import simulate_calibration_session
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -72,7 +72,7 @@ def test_each_input_is_read_once_with_the_same_report(tmp_path, capsys, monkeypa
     settings = tmp_path / "s.json"
     settings.write_text(json.dumps({"figures": False}))
     log = tmp_path / "reads.txt"
-    body = recording._validate_body
+    body = validation._validate_body
 
     def counting(path, h, *rest):
         with open(log, "a") as fh:
@@ -82,7 +82,7 @@ def test_each_input_is_read_once_with_the_same_report(tmp_path, capsys, monkeypa
     def reads():
         return log.read_text().split() if log.exists() else []
 
-    monkeypatch.setattr(recording, "_validate_body", counting)
+    monkeypatch.setattr(validation, "_validate_body", counting)
     argv = ["diagnose", str(rec), "--settings", str(settings), "--noise-record", noise_record]
     assert cli.main(argv + ["--out", str(tmp_path / "once")]) == 0
     assert sorted(reads()) == sorted(str(Path(p).resolve()) for p in (rec, noise_record))
@@ -109,8 +109,8 @@ def test_a_recording_without_segment_table_is_checked_once(tmp_path, monkeypatch
                                     or v in ("segment_index", "table_angle")])
     path = recording.write(bare, tmp_path / "bare.nc")
     checked = []
-    body = recording._validate_body
-    monkeypatch.setattr(recording, "_validate_body", lambda p, h, *rest: (checked.append(p), body(p, h, *rest))[1])
+    body = validation._validate_body
+    monkeypatch.setattr(validation, "_validate_body", lambda p, h, *rest: (checked.append(p), body(p, h, *rest))[1])
     ds, refusal = load_for_diagnosis(path)
     assert refusal is None and "segment_index" in ds and "static detection" in ds.attrs["segments_from"]
     assert checked == [path]

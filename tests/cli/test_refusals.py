@@ -19,7 +19,7 @@ import pytest
 
 from calib import cli
 from calib.core import earth
-from calib.io import recording
+from calib.io import chunked_reading, in_memory, recording, validation
 from calib.io.netcdf import write_netcdf
 from calib.signal import plausibility
 from calib.sim.calibration_session import simulate_calibration_session
@@ -541,11 +541,15 @@ def test_units_and_calibration_that_do_not_pair_are_refused_before_any_sample_is
     def no_samples(*a, **k):
         raise AssertionError("the command read samples before the refusal")
 
-    monkeypatch.setattr(recording, "_validate_body", no_samples)
+    monkeypatch.setattr(validation, "_validate_body", no_samples)
     monkeypatch.setattr(recording, "iter_raw_chunks", no_samples)
     code, err = run(capsys, "navigate", rec, *extra, "--out", tmp_path / "out.nc")
     assert code == 2 and fix in err and "calibration" in err, err
     assert not (tmp_path / "out.nc").exists()
+
+
+#: the modules that call read_header by name: a count of its calls patches each
+HEADER_READERS = (recording, validation, chunked_reading, in_memory)
 
 
 def count_calls(monkeypatch, name, *modules) -> list:
@@ -568,8 +572,8 @@ def test_the_samples_are_read_once_for_the_format_and_the_plausibility_checks(tm
     acc = np.tile([0.0, 0.0, 9.79], (3000, 1)) + np.random.default_rng(1).normal(0, 1e-3, (3000, 3))
     gyr = np.tile(np.radians([0.0, 0.002, 0.003]), (3000, 1))
     rec = physical(tmp_path, "r.nc", acc, gyr)
-    reads = count_calls(monkeypatch, "iter_raw_chunks", recording)
-    headers = count_calls(monkeypatch, "read_header", recording)
+    reads = count_calls(monkeypatch, "iter_raw_chunks", recording, validation)
+    headers = count_calls(monkeypatch, "read_header", *HEADER_READERS)
     h, pl = cli._check_recording(rec, False, "recording")
     assert len(reads) == 1
     assert len(headers) == 1   # the header too (a long recording's time coordinate is read whole for its checks)
@@ -597,7 +601,7 @@ def test_navigate_checks_every_sample_before_the_navigation(tmp_path, capsys, mo
     ds["accel"].values[77, 1] = np.nan
     ds["accel"].encoding["_FillValue"] = -9999.0
     masked = write_netcdf(ds, tmp_path / "masked.nc")
-    checks = count_calls(monkeypatch, "_validate_body", recording)
+    checks = count_calls(monkeypatch, "_validate_body", validation)
     navigations = count_calls(monkeypatch, "navigate_file", navigation_study)
     capsys.readouterr()
     code, err = run(capsys, "navigate", clean, "--out", tmp_path / "nav.nc", "--output-interval", "1")
@@ -620,7 +624,7 @@ def test_navigate_reads_the_recording_s_header_once_beside_its_check(tmp_path, c
     rec = tmp_path / "nav.nc"
     assert cli.main(["simulate", "navigation", str(rec), "--config", str(ROOT / ".test" / "config.yaml"),
                      "--hours", "0.005"]) == 0
-    reads = count_calls(monkeypatch, "read_header", recording, navigation_study)
+    reads = count_calls(monkeypatch, "read_header", *HEADER_READERS, navigation_study)
     code, err = run(capsys, "navigate", rec, "--out", tmp_path / "out.nc", "--output-interval", "1")
     assert code == 0 and (tmp_path / "out.nc").exists(), err
     assert len(reads) == 2, len(reads)

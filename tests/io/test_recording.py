@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from calib.io import recording
+from calib.io import recording, validation
 from calib.io.netcdf import write_netcdf
 
 N = 400
@@ -203,13 +203,13 @@ def test_sample_time_convention(tmp_path):
 def counted(monkeypatch):
     """Paths whose samples :func:`recording.validate` read, in order."""
     calls = []
-    body = recording._validate_body
+    body = validation._validate_body
 
     def counting(path, h, *rest):
         calls.append(str(path))
         return body(path, h, *rest)
 
-    monkeypatch.setattr(recording, "_validate_body", counting)
+    monkeypatch.setattr(validation, "_validate_body", counting)
     return calls
 
 
@@ -301,7 +301,7 @@ def test_unknown_segment_kind(tmp_path):
 def test_segment_index_outside_the_table(tmp_path, monkeypatch, bad, slice_):
     """Refused wherever it lies, also when the check reads the index in slices of ``slice_`` samples."""
     if slice_ is not None:
-        monkeypatch.setattr(recording, "PER_SAMPLE_SLICE", slice_)
+        monkeypatch.setattr(validation, "PER_SAMPLE_SLICE", slice_)
     ds = good_dataset()
     si = ds["segment_index"].values.copy()
     si[300] = bad
@@ -325,7 +325,7 @@ def test_temperature_with_a_missing_sample(tmp_path, monkeypatch, how, slice_):
     sees a masked sample as xarray would decode it: NaN), are refused naming the sample -- also when the check reads
     the temperature in slices (``slice_`` samples at a time) and the sample lies in a later slice."""
     if slice_ is not None:
-        monkeypatch.setattr(recording, "PER_SAMPLE_SLICE", slice_)
+        monkeypatch.setattr(validation, "PER_SAMPLE_SLICE", slice_)
     ds = good_dataset()
     path = write_netcdf(ds, tmp_path / "bad.nc")
     import netCDF4

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import subprocess
 from pathlib import Path
@@ -66,6 +67,24 @@ def string_values(var) -> list:
     """A netCDF string variable's values as a list of ``str`` (variable-length strings, or a character array with
     an ``_Encoding`` attribute, as xarray decodes them)."""
     return [str(v) for v in var[:]]
+
+
+def attribute_fills(var) -> list:
+    """The values of a netCDF variable's ``_FillValue`` and ``missing_value`` attributes (those xarray masks)."""
+    return [v for name in ("_FillValue", "missing_value") if name in var.ncattrs()
+            for v in np.atleast_1d(var.getncattr(name)).tolist()]
+
+
+def fill_values(var) -> list:
+    """The values that mark a missing sample of a netCDF variable: ``_FillValue`` and ``missing_value``, or
+    (no ``_FillValue`` attribute) the library's default fill of a 32- or 64-bit type (that of an 8- or 16-bit
+    type, e.g. -32767, is a reading a clipped sensor can give); NaN fills left out (NaN is refused as such)."""
+    out = attribute_fills(var)
+    if "_FillValue" not in var.ncattrs() and np.dtype(var.dtype).itemsize >= 4:
+        fv = var.get_fill_value()
+        if fv is not None:
+            out.append(fv.item() if hasattr(fv, "item") else fv)
+    return [v for v in out if not (isinstance(v, float) and math.isnan(v))]
 
 
 def cf_dataset(ds: xr.Dataset) -> xr.Dataset:
