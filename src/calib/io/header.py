@@ -111,7 +111,13 @@ class Header:
     def sample_times(self) -> np.ndarray:
         """Each sample's time [s] by the sample clock: ``t0_s + k / sample_rate_hz`` (the time coordinate of a
         file that stores none)."""
-        return self.t0_s + np.arange(self.n_samples) / self.sample_rate_hz
+        return clock_times(self.n_samples, self.sample_rate_hz, self.t0_s)
+
+
+def clock_times(n: int, sample_rate_hz: float, t0_s: float = 0.0) -> np.ndarray:
+    """The stamps [s] of ``n`` samples by the sample clock, ``t0_s + k / sample_rate_hz``: the time coordinate of a
+    file that stores none, and the one a writer stores."""
+    return t0_s + np.arange(n) / sample_rate_hz
 
 
 def unit_factor(units: str) -> float | None:
@@ -226,7 +232,8 @@ def read_header(path) -> Header:
 
 
 def _header(path, nc) -> Header:
-    conv = conventions({k: nc.getncattr(k) for k in nc.ncattrs()})
+    attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
+    conv = conventions(attrs)
     if conv != CONVENTIONS:
         raise RecordingError(path, "Conventions", f"global attribute names {conv or 'no format'!r}, expected "
                              f"'{CF_VERSION} {CONVENTIONS}'", "write recordings with calib import or calib simulate")
@@ -247,8 +254,7 @@ def _header(path, nc) -> Header:
     height = _number(path, nc, "height_m", 0.0)
     if not math.isfinite(height):
         raise RecordingError(path, "height_m", f"value {height} is not finite")
-    conv_t = str(nc.getncattr("sample_time_convention")) if "sample_time_convention" in nc.ncattrs() else \
-        SAMPLE_TIME_CONVENTIONS[0]
+    conv_t = str(_attr(nc, "sample_time_convention", SAMPLE_TIME_CONVENTIONS[0]))
     if conv_t not in SAMPLE_TIME_CONVENTIONS:
         raise RecordingError(path, "sample_time_convention", f"value {conv_t!r} unknown",
                              f"one of {', '.join(SAMPLE_TIME_CONVENTIONS)} (default {SAMPLE_TIME_CONVENTIONS[0]})")
@@ -314,7 +320,6 @@ def _header(path, nc) -> Header:
         raise RecordingError(path, "gravity_m_s2", f"value {g} is not a local gravity in m s-2 (expected "
                              f"{GRAVITY_RANGE_M_S2[0]}..{GRAVITY_RANGE_M_S2[1]})",
                              "give local gravity in m s-2, or leave it out for WGS-84 normal gravity")
-    attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
     return Header(str(path), n, fs, t0, has_time, lat, height, g,
                   kinds["accel"][0], kinds["accel"][1], kinds["gyro"][0], kinds["gyro"][1], attrs, clock_summary)
 

@@ -14,7 +14,7 @@ import numpy as np
 from calib.core import dropouts
 from calib.io import validation_cache
 from calib.io.chunked_reading import iter_raw_chunks
-from calib.io.header import SENSORS, Header, RecordingError, read_header, unreadable
+from calib.io.header import SENSORS, Header, RecordingError, clock_times, read_header, unreadable
 from calib.io.netcdf import fill_values, float_values, index_values, string_values
 
 
@@ -115,7 +115,7 @@ def _validate_body(path, h: Header, on_chunk=None) -> None:
 def _seconds_from_first(path, h: Header) -> np.ndarray:
     """Each sample's time from the first (the time coordinate, or the sample clock)."""
     if not h.has_time:
-        return np.arange(h.n_samples) / h.sample_rate_hz
+        return clock_times(h.n_samples, h.sample_rate_hz)
     with netCDF4.Dataset(path, "r") as nc:
         t = np.asarray(float_values(nc.variables["time"]), dtype=float)
     return t - t[0]

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calib.io.atomic import atomic_path, utf8_name
-from calib.io.header import AXES, CONVENTIONS, LONG_FILE_SAMPLES, RecordingError
+from calib.io.header import AXES, CONVENTIONS, LONG_FILE_SAMPLES, RecordingError, clock_times
 from calib.io.netcdf import CF_UNITS, CF_VERSION, AtomicNetCDF, write_netcdf
 from calib.io.validation import validate
 
@@ -45,7 +45,7 @@ def make_dataset(accel, gyro, *, sample_rate_hz, latitude_deg, accel_units, gyro
     n = (accel if accel is not None else gyro).shape[0]
     coords = {"axis": list(AXES)}
     if time is None and n <= LONG_FILE_SAMPLES:
-        time = t0_s + np.arange(n) / sample_rate_hz
+        time = clock_times(n, sample_rate_hz, t0_s)
     if time is not None:
         coords["time"] = ("time", np.asarray(time, dtype=np.float64), {"units": "s", "long_name": "time from start"})
     if temperature is not None:
