@@ -8,6 +8,7 @@ attributes, the two triads (or the one of a partial record) and the time coordin
 """
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -192,6 +193,23 @@ def open_recording(path):
         raise unreadable(path, exc) from exc
 
 
+@contextlib.contextmanager
+def reading(path):
+    """``path`` open for reading (:func:`open_recording`) within the block and closed after it; an exception of the
+    netCDF library inside the block (a corrupted file fails anywhere inside it) is raised as the refusal of an
+    unreadable file (:func:`unreadable`), a :class:`RecordingError` as it is."""
+    nc = open_recording(path)
+    try:
+        yield nc
+    except RecordingError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
+        raise unreadable(path, exc) from exc
+    finally:
+        if nc.isopen():
+            nc.close()
+
+
 def check_clock(path, t, fs: float) -> clock.ClockFit:
     """The time coordinate ``t`` judged by its fitted clock (:func:`calib.core.clock.fit_clock`, the one fit of
     the importers too): jitter (stamps that leave the line and come back) is accepted and dropped samples
@@ -220,15 +238,8 @@ def read_header(path) -> Header:
     Raises :class:`RecordingError` naming the file, the variable and what is wrong.
     """
     path = Path(path)
-    nc = open_recording(path)
-    try:
+    with reading(path) as nc:
         return _header(path, nc)
-    except RecordingError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
-        raise unreadable(path, exc) from exc
-    finally:
-        nc.close()
 
 
 def _header(path, nc) -> Header:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calib.io.header import RecordingError, open_recording, read_header, unreadable
+from calib.io.header import read_header, reading, unreadable
 from calib.io.netcdf import attribute_fills, internal_units, string_values
 from calib.io.validation import validate
 
@@ -128,8 +128,7 @@ def load_arrays(path, validate_all: bool = True):
     instead (an ``xarray.Dataset``, same interface)."""
     path = Path(path)
     h = validate(path) if validate_all else read_header(path)
-    nc = open_recording(path)
-    try:
+    with reading(path) as nc:
         if any(_needs_xarray_decoding(v) for v in nc.variables.values()):
             nc.close()
             return load(path, validate_all=False)
@@ -143,13 +142,6 @@ def load_arrays(path, validate_all: bool = True):
             if "units" in va:
                 va["units"] = internal_units(va["units"])
             variables[name] = ArrayVariable(_decoded(var), va, tuple(var.dimensions))
-    except RecordingError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a corrupted file fails anywhere inside the library
-        raise unreadable(path, exc) from exc
-    finally:
-        if nc.isopen():
-            nc.close()
     if "time" not in variables:
         variables["time"] = ArrayVariable(h.sample_times(), {}, ("time",))
     attrs["_path"] = str(path)
