@@ -44,6 +44,8 @@ function:
 * :mod:`calib.io.in_memory`: :func:`load` (an ``xarray.Dataset``) and :func:`load_arrays` (numpy arrays, no
   xarray: a process that only checks or diagnoses a file never imports xarray and pandas);
 * :mod:`calib.io.writing`: :func:`make_dataset`, :func:`write`, :class:`LongRecordingWriter`.
+
+A name patched here (a test's monkeypatch) is not seen by the module that implements and calls it: patch it there.
 """
 from calib.io.chunked_reading import iter_raw_chunks, open_slices, slice_bounds, time_chunk
 from calib.io.header import (AXES, CLOCK_REL_TOL, CONVENTIONS, GRAVITY_RANGE_M_S2, LONG_FILE_SAMPLES,
@@ -52,7 +54,7 @@ from calib.io.header import (AXES, CLOCK_REL_TOL, CONVENTIONS, GRAVITY_RANGE_M_S
                              to_si, unit_factor)
 from calib.io.in_memory import ArrayVariable, RecordingArrays, load, load_arrays
 from calib.io.netcdf import fill_values
-from calib.io.validation import PER_SAMPLE_SLICE, validate
+from calib.io.validation import validate
 from calib.io.validation_cache import identity, remember_validated, reuse_validation
 from calib.io.writing import LongRecordingWriter, make_dataset, write
 
@@ -62,7 +64,7 @@ __all__ = [
     "SAMPLE_TIME_CONVENTIONS", "SENSORS", "TO_SI", "UNITS", "UNREADABLE_FIX", "Header", "RecordingError",
     "check_clock", "declared_absent", "read_header", "require_sensors", "to_si", "unit_factor",
     # the check of every sample and its memory (calib.io.validation, calib.io.validation_cache)
-    "PER_SAMPLE_SLICE", "fill_values", "identity", "remember_validated", "reuse_validation", "validate",
+    "fill_values", "identity", "remember_validated", "reuse_validation", "validate",
     # reading in slices (calib.io.chunked_reading)
     "iter_raw_chunks", "open_slices", "slice_bounds", "time_chunk",
     # the two in-memory forms (calib.io.in_memory)
