@@ -53,7 +53,9 @@ cleanup() {
   rc=$?
   trap - EXIT INT TERM
   if [ ${#PIDS[@]} -gt 0 ]; then
-    scancel --quiet --full --signal=KILL --state=PENDING,RUNNING 2> /dev/null || true   # jobs of this cluster only
+    # jobs of this cluster only: cancelled, and their steps given up to 30 s to end, before the daemons stop
+    scancel --quiet --user="$(id -un)" 2> /dev/null || true
+    for _ in $(seq 60); do [ -z "$(squeue -h -o %i 2> /dev/null)" ] && break; sleep 0.5; done
     for ((i = ${#PIDS[@]} - 1; i >= 0; i--)); do kill "${PIDS[i]}" 2> /dev/null || true; done
     for pid in "${PIDS[@]}"; do
       for _ in $(seq 50); do kill -0 "$pid" 2> /dev/null || break; sleep 0.2; done
@@ -73,6 +75,8 @@ trap cleanup EXIT
 trap 'exit 130' INT
 trap 'exit 143' TERM
 
+# The daemons run in sessions of their own (setsid execs them: $! is the daemon), so that a Ctrl-C reaches only
+# snakemake, which then cancels its jobs while the cluster is still up; cleanup stops the daemons after that.
 # munge: its own key and socket (a munged of the host, if any, is left alone)
 if command -v mungekey > /dev/null; then
   mungekey --create --keyfile="$WORK/munge/munge.key"
@@ -80,7 +84,7 @@ else
   dd if=/dev/urandom of="$WORK/munge/munge.key" bs=1024 count=1 status=none
 fi
 chmod 600 "$WORK/munge/munge.key"
-munged --foreground --force --socket="$WORK/munge/munge.socket" --key-file="$WORK/munge/munge.key" \
+setsid munged --foreground --force --socket="$WORK/munge/munge.socket" --key-file="$WORK/munge/munge.key" \
   --pid-file="$WORK/munge/munged.pid" --seed-file="$WORK/munge/munged.seed" --log-file="$WORK/log/munged.log" \
   > "$WORK/log/munged.out" 2>&1 &
 PIDS+=($!)
@@ -120,9 +124,9 @@ MpiDefault=none
 $NODE State=UNKNOWN
 PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP
 EOF
-slurmctld -D -f "$CONF" > "$WORK/log/slurmctld.out" 2>&1 &
+setsid slurmctld -D -f "$CONF" > "$WORK/log/slurmctld.out" 2>&1 &
 PIDS+=($!)
-slurmd -D -f "$CONF" > "$WORK/log/slurmd.out" 2>&1 &
+setsid slurmd -D -f "$CONF" > "$WORK/log/slurmd.out" 2>&1 &
 PIDS+=($!)
 for _ in $(seq 60); do [ "$(sinfo -h -N -o %T 2> /dev/null)" = idle ] && break; sleep 0.5; done
 sinfo -N -o "%N %P %T %c %m" | sed 's/^/  /'

@@ -108,8 +108,8 @@ def main(argv: list[str]) -> int:
               "mem_mb or runtime in the profile's set-resources; or choose a partition with SBATCH_PARTITION.",
               file=sys.stderr)
         return EXIT_INPUT
-    print(f"slurm_run: {len(jobs)} jobs in {len(sizes)} sizes, each one SLURM could start "
-          f"(sbatch --test-only)", flush=True)
+    print(f"slurm_run: {len(jobs)} planned jobs in {len(sizes)} sizes, each one SLURM could start "
+          f"(sbatch --test-only; a dry run also lists the local rules)", flush=True)
     if check_only:
         return 0
     sys.stdout.flush()
