@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from calib import cli
+from calib.cli import recordings
 from calib.core import errors
 from calib.sim.calibration_session import simulate_calibration_session
 
@@ -165,11 +166,11 @@ def test_what_an_interrupted_library_raises_is_the_interruption(monkeypatch, cap
         except KeyboardInterrupt:
             raise ImportError("initialization failed") from None
 
-    monkeypatch.setattr(cli, "cmd_validate", interrupted_import)
+    monkeypatch.setattr(recordings, "cmd_validate", interrupted_import)
     assert _main_as_from_a_terminal(signum, ["validate", "x.nc"]) == code
     err = capsys.readouterr().err
     assert f"calib validate: interrupted by {name}" in err and "internal error" not in err
-    monkeypatch.setattr(cli, "cmd_validate", lambda a: (_ for _ in ()).throw(ImportError("a bug")))
+    monkeypatch.setattr(recordings, "cmd_validate", lambda a: (_ for _ in ()).throw(ImportError("a bug")))
     assert cli.main(["validate", "x.nc"]) == 70   # no signal: an ImportError is a bug
     capsys.readouterr()
     logs = list(tmp_path.glob("calib-error-*.log"))
@@ -196,7 +197,7 @@ def test_a_signal_landing_in_a_destructor_still_interrupts(monkeypatch, capsys, 
         reached.append("the end")
         return 0
 
-    monkeypatch.setattr(cli, "cmd_validate", work)
+    monkeypatch.setattr(recordings, "cmd_validate", work)
     assert _main_as_from_a_terminal(signum, ["validate", "x.nc"]) == code
     err = capsys.readouterr().err
     assert f"calib validate: interrupted by {name}" in err, err

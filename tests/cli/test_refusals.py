@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from calib import cli
+from calib.cli.common import check_recording
 from calib.core import earth
 from calib.io import chunked_reading, in_memory, recording, validation
 from calib.io.netcdf import write_netcdf
@@ -574,7 +575,7 @@ def test_the_samples_are_read_once_for_the_format_and_the_plausibility_checks(tm
     rec = physical(tmp_path, "r.nc", acc, gyr)
     reads = count_calls(monkeypatch, "iter_raw_chunks", recording, validation)
     headers = count_calls(monkeypatch, "read_header", *HEADER_READERS)
-    h, pl = cli._check_recording(rec, False, "recording")
+    h, pl = check_recording(rec, False, "recording")
     assert len(reads) == 1
     assert len(headers) == 1   # the header too (a long recording's time coordinate is read whole for its checks)
     separate = plausibility.check_recording(rec, recording.validate(rec))
@@ -582,9 +583,9 @@ def test_the_samples_are_read_once_for_the_format_and_the_plausibility_checks(tm
     assert (pl.describe(), pl.warnings, pl.n_quiet_blocks) == (separate.describe(), separate.warnings,
                                                                 separate.n_quiet_blocks)
     with recording.reuse_validation():
-        cli._check_recording(rec, False, "recording")
+        check_recording(rec, False, "recording")
         del reads[:]
-        cli._check_recording(rec, False, "recording")
+        check_recording(rec, False, "recording")
     assert len(reads) == 1
 
 
