@@ -71,3 +71,53 @@ def test_a_live_layout_engine_is_kept(tmp_path):
     style._drop_spent_layout_engine(fig)
     assert fig.get_layout_engine() is engine
     style.save(fig, tmp_path / "c.png")
+
+
+def test_ordinal():
+    from calib.figures.style import ordinal
+
+    assert [ordinal(n) for n in (1, 2, 3, 4, 11, 12, 13, 21, 22, 23, 101, 111, 112)] == \
+        ["1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "22nd", "23rd", "101st", "111th", "112th"]
+
+
+def test_fixed_margins_place_axes_in_inches():
+    """The margins asked for in inches are the axes' distances from the figure's edges, panels apart by the gap."""
+    from calib.figures import style
+
+    fig, axs = style.plt.subplots(2, 3, figsize=(9, 6))
+    style.fixed_margins(fig, left=0.9, right=0.2, top=0.5, bottom=1.1, wspace=0.7, hspace=0.4)
+    w, h = fig.get_size_inches()
+    p00, p01, p10 = axs[0, 0].get_position(), axs[0, 1].get_position(), axs[1, 0].get_position()
+    assert abs(p00.x0 * w - 0.9) < 1e-9 and abs((1 - axs[0, 2].get_position().x1) * w - 0.2) < 1e-9
+    assert abs((1 - p00.y1) * h - 0.5) < 1e-9 and abs(p10.y0 * h - 1.1) < 1e-9
+    assert abs((p01.x0 - p00.x1) * w - 0.7) < 1e-9 and abs((p00.y0 - p10.y1) * h - 0.4) < 1e-9
+    style.plt.close(fig)
+
+
+def _residual_data(after_shift):
+    import numpy as np
+
+    n = 6
+    window = np.repeat(np.arange(n), 3)
+    axis = np.tile(np.arange(3), n)
+    before = np.linspace(-2.0, 2.0, 3 * n)
+    return {"sensor": np.zeros(3 * n, int), "row": np.zeros(3 * n, int), "axis": axis, "window": window,
+            "before": before, "after": before + after_shift, "sigma": np.ones(3 * n),
+            "labels": [f"P{k}" for k in range(n)], "kind": "vector", "sensors": ["accel"], "row_names": ["mean"],
+            "title": None}
+
+
+def test_residual_figure_draws_one_series_per_axis_when_nothing_was_selected():
+    """With no term selected the residuals before and after are one set of numbers: one series per axis under an
+    x/y/z legend, titled as the base model's; with terms selected, before and after per axis."""
+    from calib.figures import diagnosis, style
+
+    fig = diagnosis.residual(_residual_data(0.0))
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["x", "y", "z"]
+    assert "no term selected" in fig._suptitle.get_text()
+    style.plt.close(fig)
+    fig = diagnosis.residual(_residual_data(-0.5))
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == \
+        ["x before", "x after", "y before", "y after", "z before", "z after"]
+    style.plt.close(fig)

@@ -14,10 +14,12 @@ AXES = ("x", "y", "z")
 
 
 def residual(d: dict):
-    """Standardised residuals (residual / sigma) per segment before and after, per sensor axis and row."""
+    """Standardised residuals (residual / sigma) per segment before and after, per sensor axis and row. Where no
+    term was selected the two are the same numbers: one series per axis then, titled as the base model's."""
     plt = style.plt
     sensor, row, axis, window = (np.asarray(d[k]) for k in ("sensor", "row", "axis", "window"))
     before, after, sig = (np.asarray(d[k], float) for k in ("before", "after", "sigma"))
+    same = np.array_equal(before, after, equal_nan=True)
     labels = list(d["labels"])
     rows = sorted({(si, r) for si, r in zip(sensor.tolist(), row.tolist())})
     fig, axs = plt.subplots(len(rows), 1, figsize=(10, 2.2 * len(rows)), sharex=True, squeeze=False)
@@ -25,22 +27,30 @@ def residual(d: dict):
         for a, col in zip(range(3), ("C0", "C1", "C2")):
             m = (sensor == si) & (row == r) & (axis == a)
             x = window[m] + (a - 1) * 0.22
+            first = (si, r) == rows[0]
+            if same:
+                ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=AXES[a] if first else None)
+                continue
             ax.plot(x, before[m] / sig[m], "o", mfc="none", color=col, ms=4,
-                    label=f"{AXES[a]} before" if r == 0 else None)
-            ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=f"{AXES[a]} after" if r == 0 else None)
+                    label=f"{AXES[a]} before" if first else None)
+            ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=f"{AXES[a]} after" if first else None)
         ax.axhline(0, color="k", lw=0.5)
         for k in (-3, 3):
             ax.axhline(k, color="k", lw=0.5, ls=":")
         name = "norm residual" if d["kind"] == "norm" else f"{d['sensors'][si]} {d['row_names'][r]}"
         ax.set_ylabel(f"{name}\n(residual / sigma)")
-    axs[0, 0].legend(ncol=6, fontsize=7, loc="upper right")
+    axs[0, 0].legend(ncol=3 if same else 6, fontsize=7, loc="upper right")
     step = max(1, int(np.ceil(len(labels) / 40)))          # at most ~40 readable tick labels
     ticks = list(range(0, len(labels), step))
     axs[-1, 0].set_xticks(ticks)
     axs[-1, 0].set_xticklabels([labels[i] for i in ticks], rotation=90, fontsize=7)
-    axs[-1, 0].set_xlabel("segment" + (f" (every {step}th labelled)" if step > 1 else ""))
-    fig.suptitle(d["title"] or "residuals before (open) and after (filled) the selected terms")
-    fig.tight_layout()
+    axs[-1, 0].set_xlabel("segment" + (f" (every {style.ordinal(step)} labelled)" if step > 1 else ""))
+    title = d["title"] or ("residuals of the base model (no term selected)" if same else
+                           "residuals before (open) and after (filled) the selected terms")
+    fig.suptitle(title)
+    longest = max((len(str(labels[i])) for i in ticks), default=0)
+    # inches: two-line y label and tick numbers; suptitle; rotated 7 pt labels (~0.06 in a character) and x label
+    style.fixed_margins(fig, left=0.95, right=0.15, top=0.45, bottom=0.55 + 0.065 * longest, hspace=0.2)
     return fig
 
 
@@ -65,7 +75,8 @@ def allan(panels: list):
         ax.set_ylabel(f"Allan deviation [{A['unit']}]")
         ax.set_title(f"{s} (pooled static segments)")
         ax.legend()
-    fig.tight_layout()
+    # inches: log tick labels and y label; title; tick labels and x label; each panel's own y label between panels
+    style.fixed_margins(fig, left=0.85, right=0.15, top=0.35, bottom=0.55, wspace=0.95)
     return fig
 
 

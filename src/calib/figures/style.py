@@ -115,6 +115,27 @@ def inspect(fig) -> list[str]:
     return problems
 
 
+def fixed_margins(fig, left: float, right: float, top: float, bottom: float, wspace: float = 0.0,
+                  hspace: float = 0.0) -> None:
+    """Place the axes of ``fig`` with margins given in inches (``wspace``/``hspace``: the gap between panels, in
+    inches too). A layout of known text needs no measuring: ``tight_layout`` draws every tick label to measure it,
+    which took ~0.3 s of a cold ``calib diagnose``'s two figures."""
+    w, h = fig.get_size_inches()
+    ax = fig.axes[0] if fig.axes else None
+    gs = ax.get_subplotspec().get_gridspec() if ax is not None and ax.get_subplotspec() is not None else None
+    nrows, ncols = gs.get_geometry() if gs is not None else (1, 1)
+    aw = (w - left - right - wspace * (ncols - 1)) / ncols
+    ah = (h - top - bottom - hspace * (nrows - 1)) / nrows
+    fig.subplots_adjust(left=left / w, right=1.0 - right / w, top=1.0 - top / h, bottom=bottom / h,
+                        wspace=wspace / aw if ncols > 1 else 0.2, hspace=hspace / ah if nrows > 1 else 0.2)
+
+
+def ordinal(n: int) -> str:
+    """``1st``, ``2nd``, ``3rd``, ``4th``, ``11th``, ``22nd`` ..."""
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
+
+
 def _drop_spent_layout_engine(fig) -> None:
     """After ``fig.tight_layout()`` the figure keeps a placeholder layout engine that does nothing, yet its
     presence makes ``savefig`` draw the whole figure once more, without output, before the real draw. The layout
