@@ -47,10 +47,10 @@ def test_quiet_leaves_only_the_result(tmp_path, capsys, session):
 def test_warnings_are_one_line_without_source():
     """A library warning during a command: one 'warning: ...' line, no file name, no source line."""
     code = ("import argparse, warnings\n"
-            "from calib.cli import common, entry\n"
+            "from calib.cli import entry, shared\n"
             "def noisy(a):\n"
             "    warnings.warn('first line\\n   second line', UserWarning)\n"
-            "    common.emit('result')\n"
+            "    shared.emit('result')\n"
             "raise SystemExit(entry._dispatch(argparse.Namespace(cmd='demo', fn=noisy, quiet=False)))\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0 and r.stdout == "result\n"

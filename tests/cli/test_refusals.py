@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from calib import cli
-from calib.cli.common import check_recording
+from calib.cli.shared import check_recording
 from calib.core import earth
 from calib.io import chunked_reading, in_memory, recording, validation
 from calib.io.netcdf import write_netcdf
@@ -593,7 +593,7 @@ def test_navigate_checks_every_sample_before_the_navigation(tmp_path, capsys, mo
     """`calib navigate` checks every sample before it navigates: a clean recording is navigated after one check; a
     masked sample is refused by its index (exit 2) before any navigation, and nothing replaces the earlier
     output."""
-    from calib.studies import navigation as navigation_study
+    from calib.studies import navigation_stage as navigation_study
 
     clean = tmp_path / "clean.nc"
     assert cli.main(["simulate", "navigation", str(clean), "--config", str(ROOT / ".test" / "config.yaml"),
@@ -620,7 +620,7 @@ def test_navigate_reads_the_recording_s_header_once_beside_its_check(tmp_path, c
     """`calib navigate` reads the header (for a recording with a time coordinate: the whole time array, differenced
     and fitted) once for the navigation and once for the sample check: the early units check, the progress bar and
     the navigation share the first read."""
-    from calib.studies import navigation as navigation_study
+    from calib.studies import navigation_stage as navigation_study
 
     rec = tmp_path / "nav.nc"
     assert cli.main(["simulate", "navigation", str(rec), "--config", str(ROOT / ".test" / "config.yaml"),

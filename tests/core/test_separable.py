@@ -48,7 +48,7 @@ def test_blocker_works():
 def test_command_line_config_without_snakemake(tmp_path):
     """A study config read by the command line gets its schema defaults without snakemake."""
     r = _run("""
-        from calib.cli.common import study_config
+        from calib.cli.shared import study_config
         cfg = study_config(None)
         print(sorted(cfg))
     """)

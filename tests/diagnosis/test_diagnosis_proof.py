@@ -12,7 +12,7 @@ import xarray as xr
 from calib.core import seeds
 from calib.io import recording
 from calib.sim.calibration_session import build_calibration_simulator, simulate_calibration_session
-from calib.studies import diagnosis as diagnosis_study
+from calib.studies import diagnosis_stage as diagnosis_study
 from calib.studies import diagnosis_proof
 from calib.studies.diagnosis_proof import FastSession, run_proof
 from calib.studies.diagnosis_score import score

@@ -169,7 +169,7 @@ def test_asymmetry_is_reported_in_the_ieee_definition(tmp_path, noise_record):
 def test_the_proof_fails_when_its_seeds_reject_a_claim():
     """A claimed rate of >= 95 % is rejected when the Clopper-Pearson 99 % interval lies wholly below it (here
     10/20 named); 19/20 does not reject it; a confounded pair attributed to one effect once rejects 'never'."""
-    from calib.studies.diagnosis import rejected_claims
+    from calib.studies.diagnosis_stage import rejected_claims
     from calib.studies.diagnosis_proof import _binom_ci
 
     def single(k, n):

@@ -110,14 +110,14 @@ def _residual_data(after_shift):
 def test_residual_figure_draws_one_series_per_axis_when_nothing_was_selected():
     """With no term selected the residuals before and after are one set of numbers: one series per axis under an
     x/y/z legend, titled as the base model's; with terms selected, before and after per axis."""
-    from calib.figures import diagnosis, style
+    from calib.figures import diagnosis_plots, style
 
-    fig = diagnosis.residual(_residual_data(0.0))
+    fig = diagnosis_plots.residual(_residual_data(0.0))
     ax = fig.axes[0]
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["x", "y", "z"]
     assert "no term selected" in fig._suptitle.get_text()
     style.plt.close(fig)
-    fig = diagnosis.residual(_residual_data(-0.5))
+    fig = diagnosis_plots.residual(_residual_data(-0.5))
     assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == \
         ["x before", "x after", "y before", "y after", "z before", "z after"]
     style.plt.close(fig)

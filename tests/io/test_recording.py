@@ -381,7 +381,7 @@ def test_the_check_of_a_recording_imports_neither_xarray_nor_pandas(tmp_path):
     import sys
 
     path = recording.write(good_dataset(2), tmp_path / "ok.nc")
-    code = ("import sys\nfrom calib.cli.common import check_recording\n"
+    code = ("import sys\nfrom calib.cli.shared import check_recording\n"
             f"h, plausible = check_recording({str(path)!r}, True, 'recording')\n"
             "assert h.n_samples == %d, h.n_samples\n"
             "print(sorted(m for m in ('xarray', 'pandas') if m in sys.modules))\n" % N)

@@ -15,7 +15,7 @@ import yaml
 
 from calib.io.netcdf import provenance
 from calib.studies import calibration as cs
-from calib.studies import diagnosis as diagnosis_study
+from calib.studies import diagnosis_stage as diagnosis_study
 from calib.studies import proof_sessions
 from calib.studies import real_proof as rp
 

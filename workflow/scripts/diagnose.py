@@ -1,5 +1,5 @@
 """Rule diagnose: mismatch diagnosis of the study's recording (report.json, report.md, figures)."""
-from calib.studies import diagnosis as diagnosis_study
+from calib.studies import diagnosis_stage as diagnosis_study
 from calib.core import progress as runlog
 
 p = snakemake.params

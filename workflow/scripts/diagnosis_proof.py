@@ -1,6 +1,6 @@
 """Rule diagnosis_proof: the concealed-effect proof over noise seeds, with detection power, gathered from the jobs
 of rule diagnosis_proof_session."""
-from calib.studies import diagnosis as diagnosis_study
+from calib.studies import diagnosis_stage as diagnosis_study
 from calib.core import progress as runlog
 from calib.io.netcdf import provenance
 

@@ -1,7 +1,7 @@
 """Rule diagnosis_proof_session: one session of the concealed-effect proof over its noise seeds, with its
 detection-power scan."""
 from calib.core import progress as runlog
-from calib.studies import diagnosis as diagnosis_study
+from calib.studies import diagnosis_stage as diagnosis_study
 
 p = snakemake.params
 with runlog.to_file(snakemake.log[0]):

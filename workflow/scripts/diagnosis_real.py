@@ -1,5 +1,5 @@
 """Rule diagnosis_real: diagnose every shared real recording, and one with a known term injected."""
-from calib.studies import diagnosis as diagnosis_study
+from calib.studies import diagnosis_stage as diagnosis_study
 from calib.core import progress as runlog
 
 p = snakemake.params

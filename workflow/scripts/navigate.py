@@ -1,7 +1,7 @@
 """Rule navigate: pure-inertial navigation of a recording (with a calibration for count data), errors to netCDF."""
 import numba
 
-from calib.studies import navigation as navigation_study
+from calib.studies import navigation_stage as navigation_study
 from calib.core import progress as runlog
 from calib.io.netcdf import provenance
 

@@ -1,7 +1,7 @@
 """Rule static_check: Liu 2021 Figure 10, static navigation with each method's calibration."""
 import numba
 
-from calib.studies import navigation as navigation_study
+from calib.studies import navigation_stage as navigation_study
 from calib.core import progress as runlog
 from calib.io.netcdf import provenance
 

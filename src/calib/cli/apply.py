@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from calib.cli.common import FORCE_HELP, checked_recording, emit, output_file, sha256
+from calib.cli.shared import FORCE_HELP, checked_recording, emit, output_file, sha256
 from calib.core.errors import InputError, input_file
 
 

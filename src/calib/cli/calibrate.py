@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from calib.cli.common import FORCE_HELP, checked_recording, emit, output_dir, output_file, study_config
+from calib.cli.shared import FORCE_HELP, checked_recording, emit, output_dir, output_file, study_config
 from calib.core.errors import InputError, input_file, load_mapping
 
 

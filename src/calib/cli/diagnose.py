@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from calib.cli.common import FORCE_HELP, checked_recording, emit, output_dir
+from calib.cli.shared import FORCE_HELP, checked_recording, emit, output_dir
 from calib.core.errors import InputError, ResultCheckError, input_file, load_mapping
 
 

@@ -33,7 +33,7 @@ import yaml
 
 from calib import __version__
 from calib.cli import apply, calibrate, diagnose, export, navigate, noise_terms, recordings, simulate
-from calib.cli.common import COMMAND_STDOUT, OutputClosed
+from calib.cli.shared import COMMAND_STDOUT, OutputClosed
 from calib.core import progress
 from calib.core.errors import (EXIT_CODES, EXIT_INPUT, EXIT_INTERNAL, EXIT_SIGINT, EXIT_SIGPIPE, CalibError,
                                ResultCheckError, Terminated, yaml_problem)

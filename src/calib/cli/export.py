@@ -6,7 +6,7 @@ The library modules the functions need (numpy, netCDF, scipy and more behind the
 loaded only when a command runs, so that ``calib --help`` and a usage error answer at once."""
 from __future__ import annotations
 
-from calib.cli.common import emit, output_file
+from calib.cli.shared import emit, output_file
 from calib.core.errors import input_file
 from calib.io import EXPORT_FORMATS as FORMATS
 

@@ -4,13 +4,13 @@ The library modules the functions need (numpy, netCDF, scipy and more behind the
 loaded only when a command runs, so that ``calib --help`` and a usage error answer at once."""
 from __future__ import annotations
 
-from calib.cli.common import FORCE_HELP, checked_recording, emit, output_file, positive
+from calib.cli.shared import FORCE_HELP, checked_recording, emit, output_file, positive
 from calib.core.errors import input_file
 
 
 def cmd_navigate(a):
     from calib.io import recording
-    from calib.studies import navigation as navigation_study
+    from calib.studies import navigation_stage as navigation_study
 
     positive(a.nav_rate, "--nav-rate")
     positive(a.output_interval, "--output-interval")

@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from calib import __version__
-from calib.cli.common import FORCE_HELP, checked_recording, emit, output_dir, output_file, sha256
+from calib.cli.shared import FORCE_HELP, checked_recording, emit, output_dir, output_file, sha256
 from calib.core.errors import InputError
 from calib.core.progress import Progress
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from calib.cli.common import FORCE_HELP, checked_recording, emit, output_file
+from calib.cli.shared import FORCE_HELP, checked_recording, emit, output_file
 from calib.core.errors import InputError, load_mapping
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-from calib.cli.common import emit, output_file, positive, study_config
+from calib.cli.shared import emit, output_file, positive, study_config
 from calib.core.errors import InputError
 
 

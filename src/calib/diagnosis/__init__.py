@@ -22,7 +22,7 @@ Method
    rotation pair the sum and the difference of the +/- residuals against |rate|; the phase-quadrature part
    of the gyro harmonics against rate; the time course (residual chi-square in time bins).
 3. **Name.** A library of candidate terms (:mod:`calib.diagnosis.library`; the ids of :mod:`calib.sim.effects`,
-   verbatim), each with its own parameters. Before fitting (:mod:`calib.diagnosis.identifiability`): the
+   verbatim), each with its own parameters. Before fitting (:mod:`calib.diagnosis.term_identifiability`): the
    fraction of each signature the base parameters absorb (``1 - |P_perp s| / |s|``, whitened), the visible
    rank, and the smallest principal angle between the visible signatures of every pair of candidates (alias
    groups: angle < ``alias_angle_deg``). Then forward stepwise selection (:mod:`calib.diagnosis.selection`):

@@ -14,7 +14,7 @@ from calib.diagnosis.blas import solve_lower
 from calib.diagnosis.fitting import chi2_rank, fit
 from calib.diagnosis.generic import form_alternatives, open_search
 from calib.diagnosis.geometry import ROWS, SENSORS
-from calib.diagnosis.identifiability import discrimination_noncentrality, library_geometry, separating_segments
+from calib.diagnosis.term_identifiability import discrimination_noncentrality, library_geometry, separating_segments
 from calib.diagnosis.library import EXPERIMENTS, build_library
 from calib.diagnosis.locate import block_table, locate
 from calib.diagnosis.noise import covariance_blocks, profile_noise, shape_eig

@@ -42,7 +42,7 @@ class Candidate:
     experiment: str = ""
     keys: list = field(default_factory=list)   # (registry key, index) per parameter
     offset: object = None            # OffsetModel of the time-offset candidate
-    # set by calib.diagnosis.identifiability.prepare_library for the problem the library serves:
+    # set by calib.diagnosis.term_identifiability.prepare_library for the problem the library serves:
     active: np.ndarray | None = None    # indices of the determined parameters
     visible: np.ndarray | None = None   # norm of each parameter's whitened signature not absorbed by the base
     absorbed: np.ndarray | None = None  # fraction of each parameter's signature the base absorbs

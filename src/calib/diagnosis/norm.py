@@ -18,7 +18,7 @@ from calib.core.triad import MIN_POSES_TO_TEST
 from calib.core.distributions import chi2_sf
 from calib.core.earth import STANDARD_GRAVITY
 from calib.diagnosis.geometry import AXES, TO_MODEL, DiagnosisInputError, build_geometry, rate_readings
-from calib.diagnosis.identifiability import prepare_library
+from calib.diagnosis.term_identifiability import prepare_library
 from calib.diagnosis.library import DRIFT_TAUS, EXPERIMENTS, Candidate, window_nodes, zero_params
 from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, lstsq
 from calib.signal import allan

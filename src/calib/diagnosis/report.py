@@ -169,7 +169,7 @@ def report_markdown(rep: dict) -> str:
 
 
 def residual_data(prob: Problem, fits, title="") -> dict:
-    """What the residual figure shows, as plain data (:func:`calib.figures.diagnosis.residual`)."""
+    """What the residual figure shows, as plain data (:func:`calib.figures.diagnosis_plots.residual`)."""
     o = prob.geom.obs
     base, final = fits
     return {"sensor": np.asarray(o["sensor"]), "row": np.asarray(o["row"]), "axis": np.asarray(o["axis"]),
@@ -193,7 +193,7 @@ def allan_data(prob: Problem) -> list:
 
 def residual_figure(prob: Problem, fits, path, title=""):
     """Standardised residuals (residual / sigma) per segment before and after, per sensor axis and row."""
-    from calib.figures import diagnosis as figs, style   # matplotlib with the project's rc settings: only when drawing
+    from calib.figures import diagnosis_plots as figs, style   # matplotlib with the project's rc settings: only when drawing
 
     return style.save(figs.residual(residual_data(prob, fits, title)), path)
 
@@ -202,12 +202,12 @@ def allan_figure(prob: Problem, path):
     """Allan deviation of the static segments per sensor, with its confidence band; only the sensors the
     diagnosis has (no blank panel); taus with fewer than 2 equivalent degrees of freedom are left out (their
     interval is wider than the plot)."""
-    from calib.figures import diagnosis as figs, style   # matplotlib with the project's rc settings: only when drawing
+    from calib.figures import diagnosis_plots as figs, style   # matplotlib with the project's rc settings: only when drawing
 
     return style.save(figs.allan(allan_data(prob)), path)
 
 
-#: the figures of a report: file name, kind (:data:`calib.figures.diagnosis.FIGURES`), data
+#: the figures of a report: file name, kind (:data:`calib.figures.diagnosis_plots.FIGURES`), data
 def _figure_jobs(prob: Problem, fits):
     return [("residuals_before_after.png", "residual", residual_data(prob, fits)),
             ("allan_deviation.png", "allan", allan_data(prob))]
@@ -215,7 +215,7 @@ def _figure_jobs(prob: Problem, fits):
 
 def write_figures(prob: Problem, fits, out_dir) -> list:
     """The report's figures in ``out_dir``, in the order of :func:`_figure_jobs`."""
-    from calib.figures import diagnosis as figs, style   # matplotlib with the project's rc settings: only when drawing
+    from calib.figures import diagnosis_plots as figs, style   # matplotlib with the project's rc settings: only when drawing
 
     out_dir = Path(out_dir)
     return [str(style.save(figs.FIGURES[kind](data), out_dir / name)) for name, kind, data in _figure_jobs(prob, fits)]

@@ -12,7 +12,7 @@ import numpy as np
 from calib.diagnosis.fitting import fit
 from calib.diagnosis.geometry import (SENSORS, DiagnosisInputError, base_design, build_geometry,
                                       pulse_counter_channels, reduce_data, reduced_inputs)
-from calib.diagnosis.identifiability import prepare_library
+from calib.diagnosis.term_identifiability import prepare_library
 from calib.diagnosis.library import build_library
 from calib.diagnosis.noise import covariance_blocks, covariance_parts, fit_noise, reml_slow, with_measured_slow
 from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem, base_estimates
