@@ -146,20 +146,6 @@ def sensitivity_matrix(t, lat, C_bn, h=0.0, condition="true_attitude") -> np.nda
     return X[:, list(_OBS_STATE), :].reshape(-1, p)
 
 
-def process_noise(F, Qc, dt):
-    """Phi = expm(F dt) and the exact discrete process-noise covariance int_0^dt expm(F s) Qc expm(F s)^T ds
-    (Van Loan 1978)."""
-    n = F.shape[0]
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = -F
-    M[:n, n:] = Qc
-    M[n:, n:] = F.T
-    E = scipy.linalg.expm(M * dt)
-    Phi = E[n:, n:].T
-    Qd = Phi @ E[:n, n:]
-    return Phi, 0.5 * (Qd + Qd.T)
-
-
 def noise_factor(t, lat, h=0.0, q_gyro=0.0, q_accel=0.0, meas_sigma=None) -> np.ndarray:
     """K with Sigma = K K^T: the observed errors caused by the sensor noise, n = K w, w standard normal.
 
@@ -177,7 +163,7 @@ def noise_factor(t, lat, h=0.0, q_gyro=0.0, q_accel=0.0, meas_sigma=None) -> np.
     Qc = np.zeros((nx, nx))
     Qc[0:3, 0:3] = q_gyro * np.eye(3)
     Qc[3:5, 3:5] = q_accel * np.eye(2)
-    Phi, Qd = process_noise(F, Qc, dt)
+    Phi, Qd = errormodel.discretize(F, Qc, dt)
     w, V = np.linalg.eigh(Qd)
     Lq = V * np.sqrt(np.clip(w, 0.0, None))  # Qd = Lq Lq^T
     H = np.zeros((4, nx))

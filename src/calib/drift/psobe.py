@@ -218,21 +218,6 @@ class KalmanResult:
     nuisance: tuple  # names of theta components treated as unknown
 
 
-def _discretize(A, Qc, dt):
-    """Van Loan: Phi = expm(A dt) and Qd = int_0^dt expm(A s) Qc expm(A s)^T ds."""
-    import scipy.linalg
-
-    n = A.shape[0]
-    M = np.zeros((2 * n, 2 * n))
-    M[:n, :n] = -A
-    M[:n, n:] = Qc
-    M[n:, n:] = A.T
-    E = scipy.linalg.expm(M * dt)
-    Phi = E[n:, n:].T
-    Qd = Phi @ E[:n, n:]
-    return Phi, 0.5 * (Qd + Qd.T)
-
-
 def kalman_drift(y, dt_out, lat, C_bn, arw_rad_rts, condition="true_attitude", h=0.0, sigma_v=1e-5,
                  sigma_p_rad=1e-9, estimate_accel_bias=True, prior_eps=1e-5, prior_nabla=1e-1, white_rad_s=0.0,
                  dt_sample=0.01):
@@ -259,7 +244,7 @@ def kalman_drift(y, dt_out, lat, C_bn, arw_rad_rts, condition="true_attitude", h
     q = arw_rad_rts**2 + white_rad_s**2 * dt_sample
     Qc = np.zeros((13, 13))
     Qc[:3, :3] = q * (C @ C.T)  # angle random walk enters phi through -C_b^n w
-    Phi, Qd = _discretize(A, Qc, dt_out)
+    Phi, Qd = errormodel.discretize(A, Qc, dt_out)
     # initial covariance: x(0) = L theta, theta ~ N(0, P_theta) (diffuse); a fixed nabla when not estimated
     L = initial_error_map(condition, lat, C, g)
     T = np.zeros((13, 6))

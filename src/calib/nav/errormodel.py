@@ -224,3 +224,18 @@ def mode_frequencies(lat, h=0.0, **kw):
     ev = np.linalg.eigvals(f_matrix(lat, h, **kw))
     w = np.sort(np.abs(ev.imag[ev.imag > 1e-12]))
     return w
+
+
+def discretize(F, Qc, dt):
+    """``(Phi, Qd)`` of the linear model dx/dt = F x + w, E[w w^T] = Qc delta: Phi = expm(F dt) and the exact
+    discrete process-noise covariance Qd = int_0^dt expm(F s) Qc expm(F s)^T ds, both from one matrix exponential
+    (Van Loan 1978); Qd symmetrised."""
+    n = F.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -F
+    M[:n, n:] = Qc
+    M[n:, n:] = F.T
+    E = scipy.linalg.expm(M * dt)
+    Phi = E[n:, n:].T
+    Qd = Phi @ E[:n, n:]
+    return Phi, 0.5 * (Qd + Qd.T)
