@@ -121,3 +121,20 @@ def test_residual_figure_draws_one_series_per_axis_when_nothing_was_selected():
     assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == \
         ["x before", "x after", "y before", "y after", "z before", "z after"]
     style.plt.close(fig)
+
+
+def test_plain_log_ticks_on_less_than_a_decade():
+    """A log axis over less than a decade: plain labels at 2 and 5, no '2x10^0'-style minor labels to overlap."""
+    from calib.figures import style
+
+    fig, ax = style.plt.subplots()
+    ax.plot([1.5, 8.0], [0.0, 1.0])
+    ax.set_xscale("log")
+    ax.set_xlim(1.5, 8.0)
+    style.plain_log_ticks(ax, "x")
+    fig.canvas.draw()
+    lo, hi = ax.get_xlim()
+    major = [t.get_text() for t in ax.get_xticklabels() if lo <= t.get_position()[0] <= hi]
+    minor = [t.get_text() for t in ax.get_xticklabels(minor=True) if t.get_text()]
+    assert major == ["2", "5"] and minor == []
+    style.plt.close(fig)

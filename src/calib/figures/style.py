@@ -130,6 +130,18 @@ def fixed_margins(fig, left: float, right: float, top: float, bottom: float, wsp
                         wspace=wspace / aw if ncols > 1 else 0.2, hspace=hspace / ah if nrows > 1 else 0.2)
 
 
+def plain_log_ticks(ax, which: str = "x") -> None:
+    """A log axis labelled 1, 2, 5, 10, 20, 50 ... in plain numbers, minor ticks unlabelled. Matplotlib's default
+    labels the minor ticks of an axis spanning less than a decade as ``2x10^0``, ``3x10^0`` ..., which overlap."""
+    from matplotlib import ticker
+
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    axis.set_major_locator(ticker.LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(ticker.FuncFormatter(lambda v, _pos: f"{v:g}"))
+    axis.set_minor_locator(ticker.LogLocator(base=10.0, subs=tuple(range(2, 10))))
+    axis.set_minor_formatter(ticker.NullFormatter())
+
+
 def ordinal(n: int) -> str:
     """``1st``, ``2nd``, ``3rd``, ``4th``, ``11th``, ``22nd`` ..."""
     suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")

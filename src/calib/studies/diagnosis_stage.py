@@ -190,6 +190,7 @@ def power_figure(power: dict, path):
         return figures.save(fig, path)
     ax.axhline(0.8, color="k", lw=0.8, ls=":")
     ax.set_xscale("log")
+    figures.plain_log_ticks(ax, "x")
     ax.set_ylim(-0.03, 1.03)
     ax.set_xlabel("injected magnitude / proof magnitude")
     ax.set_ylabel("fraction of seeds in which the effect is named")

@@ -625,6 +625,7 @@ def limits_figure(results, path):
                     label=f"{L['parameter'].split('_')[0]} {L['axis']}" if ax is axes[0][0] else None)
         ax.axhline(0.95, color="k", lw=0.8, ls=":")
         ax.set_xscale("log")
+        figures.plain_log_ticks(ax, "x")
         ax.set_title(r["recording"], fontsize=9)
         ax.set_xlabel("injected / baseline se")
     axes[0][0].set_ylabel("fraction named")
