@@ -209,3 +209,19 @@ def test_half_sample_stamps_are_not_a_clock_offset(fast, noise_record):
     # a spurious clock offset of a fraction of a sample (the zeroing of the angle at the segment start absorbs
     # part of the half-sample shift): clearly non-zero, never more than one sample
     assert 3.0 * p["se"] < abs(p["value"]) <= 0.01
+
+
+def test_the_residual_figure_marks_the_injected_axis(fast, noise_record):
+    """The residual figure rings where the unexplained misfit sits: for a periodic bias injected on the x gyro,
+    the gyro's x-axis observations and no other."""
+    from calib.diagnosis.geometry import AXES, SENSORS
+    from calib.diagnosis.report import unexplained_masks
+
+    fs = fast([{"effect": "periodic_bias", "sensor": "gyro", "axis": "x", "amplitude": 0.3, "period_s": 1200.0}])
+    rep, prob = dg.diagnose_dataset(fs.dataset(SEEDS[0]), None, {"figures": False, "noise_record": noise_record},
+                                    path=f"seed {SEEDS[0]}")
+    assert rep["verdict"] == "unexplained"
+    (name, idx), = unexplained_masks(prob, rep["unexplained"])
+    o = prob.geom.obs
+    gx = np.flatnonzero((np.asarray(o["sensor"]) == SENSORS.index("gyro")) & (np.asarray(o["axis"]) == AXES.index("x")))
+    assert name == "gyro x" and np.array_equal(np.sort(idx), gx)

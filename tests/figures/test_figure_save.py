@@ -138,3 +138,23 @@ def test_plain_log_ticks_on_less_than_a_decade():
     minor = [t.get_text() for t in ax.get_xticklabels(minor=True) if t.get_text()]
     assert major == ["2", "5"] and minor == []
     style.plt.close(fig)
+
+
+def test_residual_figure_rings_where_the_unexplained_misfit_sits():
+    """An unexplained misfit's observations are ringed in the panel of their sensor and row, under the name the
+    report gives it; panels without one get no such series."""
+    import numpy as np
+
+    from calib.figures import diagnosis_plots, style
+
+    d = _residual_data(-0.5)
+    d["sensor"] = np.r_[np.zeros(9, int), np.ones(9, int)]
+    d["sensors"] = ["accel", "gyro"]
+    d["unexplained"] = [("gyro x: rotation windows", np.array([9, 12]))]
+    fig = diagnosis_plots.residual(d)
+    acc, gyr = fig.axes
+    ringed = [ln for ln in gyr.get_lines() if ln.get_label() == "unexplained misfit: gyro x: rotation windows"]
+    assert len(ringed) == 1 and len(ringed[0].get_xdata()) == 2
+    assert not [ln for ln in acc.get_lines() if str(ln.get_label()).startswith("unexplained")]
+    assert "unexplained misfit: gyro x: rotation windows" in [t.get_text() for t in gyr.get_legend().get_texts()]
+    style.plt.close(fig)

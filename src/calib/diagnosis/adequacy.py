@@ -45,6 +45,11 @@ def leverages(prob: Problem, f: Fit, L=None) -> np.ndarray:
     return np.sum(u[:, keep] ** 2, axis=1)
 
 
+def subset_masks(prob: Problem) -> dict:
+    """Name -> boolean mask over the observations of every subset the adequacy test judges."""
+    return {name: m for name, _, m in _groups(prob)}
+
+
 def _groups(prob: Problem):
     """(name, description dict, boolean mask) of every subset tested."""
     g, o = prob.geom, prob.geom.obs
@@ -150,7 +155,7 @@ def unexplained_entries(prob: Problem, f: Fit, adq: dict) -> list[dict]:
     for key, idx in o["blocks"].items():
         sig[idx] = np.sqrt(np.einsum("ij,ij->i", L[key], L[key]))
     t = np.array([g.time_s[g.windows[w].i0] + 0.5 * g.windows[w].n * g.dt for w in o["window"]])
-    groups = {name: m for name, _, m in _groups(prob)}
+    groups = subset_masks(prob)
     out = []
     for test in adq["tests"]:
         if not test["rejected"] or test["name"] == "all":

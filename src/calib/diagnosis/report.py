@@ -168,15 +168,44 @@ def report_markdown(rep: dict) -> str:
     return "\n".join(L) + "\n"
 
 
-def residual_data(prob: Problem, fits, title="") -> dict:
-    """What the residual figure shows, as plain data (:func:`calib.figures.diagnosis_plots.residual`)."""
+def unexplained_masks(prob: Problem, unexplained) -> list:
+    """Where the report's ``unexplained[]`` sits, for the residual figure: one ``(name, observation indices)``.
+    The entries that name a sensor axis (the rejected sensor-axis test, a structure of the open search) say where
+    most precisely; the others (a segment class, a part of the session) only where no entry names an axis. Empty
+    when nothing is unexplained."""
+    from calib.diagnosis.adequacy import subset_masks   # the subsets the adequacy test judged
+
+    o = prob.geom.obs
+    groups = subset_masks(prob)
+    named, broad = {}, {}
+    for u in unexplained or ():
+        m = groups.get(u.get("name"))
+        axis = u.get("axis")
+        if m is None and u.get("sensor") in SENSORS:
+            m = np.asarray(o["sensor"]) == SENSORS.index(u["sensor"])
+            if axis in AXES:
+                m = m & (np.asarray(o["axis"]) == AXES.index(axis))
+        if m is None or not np.any(m):
+            continue
+        where = f"{u.get('sensor', '')} {axis}".strip() if axis else str(u.get("name"))
+        (named if axis else broad).setdefault(where, np.zeros(prob.n, bool))
+        (named if axis else broad)[where] |= m
+    use = named or broad
+    if not use:
+        return []
+    return [(", ".join(use), np.flatnonzero(np.logical_or.reduce(list(use.values()))))]
+
+
+def residual_data(prob: Problem, fits, title="", unexplained=()) -> dict:
+    """What the residual figure shows, as plain data (:func:`calib.figures.diagnosis_plots.residual`); with the
+    report's ``unexplained[]``, where each unexplained misfit sits."""
     o = prob.geom.obs
     base, final = fits
     return {"sensor": np.asarray(o["sensor"]), "row": np.asarray(o["row"]), "axis": np.asarray(o["axis"]),
             "window": np.asarray(o["window"]), "before": np.asarray(base.resid, float),
             "after": np.asarray(final.resid, float), "sigma": np.asarray(prob.sigma(), float),
             "labels": [w.label for w in prob.geom.windows], "kind": prob.kind, "sensors": SENSORS,
-            "row_names": ROWS, "title": title}
+            "row_names": ROWS, "title": title, "unexplained": unexplained_masks(prob, unexplained)}
 
 
 def allan_data(prob: Problem) -> list:
@@ -208,17 +237,18 @@ def allan_figure(prob: Problem, path):
 
 
 #: the figures of a report: file name, kind (:data:`calib.figures.diagnosis_plots.FIGURES`), data
-def _figure_jobs(prob: Problem, fits):
-    return [("residuals_before_after.png", "residual", residual_data(prob, fits)),
+def _figure_jobs(prob: Problem, fits, unexplained=()):
+    return [("residuals_before_after.png", "residual", residual_data(prob, fits, unexplained=unexplained)),
             ("allan_deviation.png", "allan", allan_data(prob))]
 
 
-def write_figures(prob: Problem, fits, out_dir) -> list:
+def write_figures(prob: Problem, fits, out_dir, unexplained=()) -> list:
     """The report's figures in ``out_dir``, in the order of :func:`_figure_jobs`."""
     from calib.figures import diagnosis_plots as figs, style   # matplotlib with the project's rc settings: only when drawing
 
     out_dir = Path(out_dir)
-    return [str(style.save(figs.FIGURES[kind](data), out_dir / name)) for name, kind, data in _figure_jobs(prob, fits)]
+    return [str(style.save(figs.FIGURES[kind](data), out_dir / name)) for name, kind, data in
+            _figure_jobs(prob, fits, unexplained)]
 
 
 def _report_header(path, st):
@@ -255,7 +285,7 @@ def build_report(prob: Problem, res: dict, path, st, figures_dir=None) -> dict:
     rep.update({k: v for k, v in res.items() if not k.startswith("_")})
     figs = []
     if figures_dir is not None and st.get("figures", True):
-        figs = write_figures(prob, res["_fits"], figures_dir)
+        figs = write_figures(prob, res["_fits"], figures_dir, res.get("unexplained") or ())
     rep["figures"] = figs
     return rep
 

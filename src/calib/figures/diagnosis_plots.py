@@ -34,12 +34,22 @@ def residual(d: dict):
             ax.plot(x, before[m] / sig[m], "o", mfc="none", color=col, ms=4,
                     label=f"{AXES[a]} before" if first else None)
             ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=f"{AXES[a]} after" if first else None)
+        for j, (uname, idx) in enumerate(d.get("unexplained") or ()):
+            idx = np.asarray(idx, int)
+            m = np.zeros(sensor.size, bool)
+            m[idx] = True
+            m &= (sensor == si) & (row == r)
+            if m.any():   # where an unexplained misfit sits: the final model's residuals of that subset, ringed
+                ax.plot(window[m] + (axis[m] - 1) * 0.22, after[m] / sig[m], "o", mfc="none", mec="C3",
+                        ms=9 + 3 * j, mew=1.0, label=f"unexplained misfit: {uname}")
         ax.axhline(0, color="k", lw=0.5)
         for k in (-3, 3):
             ax.axhline(k, color="k", lw=0.5, ls=":")
         name = "norm residual" if d["kind"] == "norm" else f"{d['sensors'][si]} {d['row_names'][r]}"
         ax.set_ylabel(f"{name}\n(residual / sigma)")
-    axs[0, 0].legend(ncol=3 if same else 6, fontsize=7, loc="upper right")
+    for ax in axs[:, 0]:
+        if ax.get_legend_handles_labels()[1]:
+            ax.legend(ncol=3 if same else 6, fontsize=7, loc="upper right")
     step = max(1, int(np.ceil(len(labels) / 40)))          # at most ~40 readable tick labels
     ticks = list(range(0, len(labels), step))
     axs[-1, 0].set_xticks(ticks)
