@@ -158,3 +158,18 @@ def test_residual_figure_rings_where_the_unexplained_misfit_sits():
     assert not [ln for ln in acc.get_lines() if str(ln.get_label()).startswith("unexplained")]
     assert "unexplained misfit: gyro x: rotation windows" in [t.get_text() for t in gyr.get_legend().get_texts()]
     style.plt.close(fig)
+
+
+def test_residual_figure_of_the_norm_model_draws_one_series():
+    """The norm model has one residual per segment: one series (before and after), named 'norm', no x/y/z."""
+    import numpy as np
+
+    from calib.figures import diagnosis_plots, style
+
+    d = _residual_data(-0.5)
+    keep = d["axis"] == 0
+    d = {k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in d.items()}
+    d["kind"] = "norm"
+    fig = diagnosis_plots.residual(d)
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["norm before", "norm after"]
+    style.plt.close(fig)

@@ -26,14 +26,17 @@ def residual(d: dict):
     for ax, (si, r) in zip(axs[:, 0], rows):
         for a, col in zip(range(3), ("C0", "C1", "C2")):
             m = (sensor == si) & (row == r) & (axis == a)
+            if not m.any():   # e.g. the norm model: one series, not three under an x/y/z legend
+                continue
             x = window[m] + (a - 1) * 0.22
             first = (si, r) == rows[0]
+            name = "norm" if d["kind"] == "norm" else AXES[a]
             if same:
-                ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=AXES[a] if first else None)
+                ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=name if first else None)
                 continue
             ax.plot(x, before[m] / sig[m], "o", mfc="none", color=col, ms=4,
-                    label=f"{AXES[a]} before" if first else None)
-            ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=f"{AXES[a]} after" if first else None)
+                    label=f"{name} before" if first else None)
+            ax.plot(x, after[m] / sig[m], ".", color=col, ms=5, label=f"{name} after" if first else None)
         for j, (uname, idx) in enumerate(d.get("unexplained") or ()):
             idx = np.asarray(idx, int)
             m = np.zeros(sensor.size, bool)
