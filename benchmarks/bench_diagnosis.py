@@ -178,7 +178,7 @@ def bench_cli(recording, noise_record, out, reps=3):
         walls.append(time.perf_counter() - t0)
         r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpus.append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
-    rows.append(("start-up only", 'python -c "import calib.cli, calib.cli.formats, calib.diagnosis"', walls, cpus))
+    rows.append(("start-up only", 'python -c "import calib.cli, calib.diagnosis"', walls, cpus))
     return rows
 
 
