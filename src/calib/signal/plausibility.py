@@ -283,7 +283,7 @@ def _judge(c: RecordingCheck) -> Plausibility:
         if sensor in h.sensors:
             ab.judge(refuse, sensor)
     if fa is None and "accel" in h.sensors and quiet.any():
-        _count_spikes(refuse, c, float(np.median(np.linalg.norm(am[quiet], axis=1))))
+        _count_spikes(refuse, c, a_norm)   # the static norm judged above
     if fg is not None:
         _table_rotation_check(refuse, res, path, h, fg)
     return res
