@@ -61,12 +61,9 @@ def find_runs(triads: dict, min_run: int = MIN_RUN, offset: int = 0) -> list[Run
     for name, x in triads.items():
         if x is None or len(x) < min_run:
             continue
-        x = np.asarray(x)
-        same = np.all(x[1:] == x[:-1], axis=1)   # row i + 1 equals row i
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
-        for p, q in zip(edges[::2], edges[1::2]):   # same[p:q]: rows p .. q all equal
-            if q - p + 1 >= min_run:
-                out.append(Run(name, int(p) + offset, int(q) + 1 + offset, not bool(np.any(x[p]))))
+        tracker = RunTracker(name, min_run)   # the whole array as one chunk: one implementation of a run
+        tracker.add(x)
+        out += [Run(r.sensor, r.start + offset, r.stop + offset, r.zero) for r in tracker.finish()]
     return sorted(out, key=lambda r: (r.start, r.sensor))
 
 
