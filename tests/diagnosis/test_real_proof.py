@@ -1,7 +1,7 @@
-"""Real recordings as proof bases (calib.studies.real_proof): the block resampling and the injection against their
-definitions, detection limits and the injection proof on a shared recording, the refusal of degenerate
-explanations. Expected answers are properties of the injected physics or of the definitions, never numbers
-captured from the diagnosis."""
+"""Real recordings as proof bases: the block resampling and the injection against their definitions, detection
+limits (calib.diagnosis.limits) and the injection proof (calib.studies.real_proof) on a shared recording, the
+refusal of degenerate explanations. Expected answers are properties of the injected physics or of the definitions,
+never numbers captured from the diagnosis."""
 from __future__ import annotations
 
 import json
@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from calib.core import seeds
+from calib.diagnosis import limits
 from calib.studies import real_proof as rp
 from calib.studies.diagnosis_real import import_real
 
@@ -21,7 +22,7 @@ needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"shared real-data dir
 
 @pytest.fixture(scope="module")
 def mikoff():
-    return rp.ProofBase(import_real(ROOT / "config" / "import" / "mikoff_imu0.yaml"), name="mikoff_imu0")
+    return limits.ProofBase(import_real(ROOT / "config" / "import" / "mikoff_imu0.yaml"), name="mikoff_imu0")
 
 
 @needs_real
@@ -59,8 +60,8 @@ def test_limits_and_proof_on_a_real_recording(mikoff):
     value; out-of-library effects at twice the size at which their misfit is seen are never explained; nothing
     degenerate is accepted."""
     assert mikoff.baseline["verdict"] == "adequate" and not mikoff.baseline["found"]
-    lim = rp.detection_limits(mikoff, reps=4, seed=5101, effects=["accel_quadratic_nonlinearity"], axes=("x",),
-                              progress=False)
+    lim = limits.detection_limits(mikoff, reps=4, seed=5101, effects=["accel_quadratic_nonlinearity"], axes=("x",),
+                                  progress=False)
     k2 = [r for r in lim if r["kind"] == "library"][0]
     assert k2["detectable"] and 2.0 * abs(k2["baseline_se"]) <= abs(k2["limit"]) <= 20.0 * abs(k2["baseline_se"])
     res = rp.prove(mikoff, lim, n_inject=8, n_out=2, seed=5102, progress=False)
@@ -71,22 +72,22 @@ def test_limits_and_proof_on_a_real_recording(mikoff):
 
 @needs_real
 def test_a_recording_with_too_few_poses_says_not_detectable_at_any_magnitude():
-    base = rp.ProofBase(import_real(ROOT / "config" / "import" / "smac_adis16405.yaml"), name="adis")
-    lim = rp.detection_limits(base, reps=2, seed=1, axes=("x",), progress=False)
+    base = limits.ProofBase(import_real(ROOT / "config" / "import" / "smac_adis16405.yaml"), name="adis")
+    lim = limits.detection_limits(base, reps=2, seed=1, axes=("x",), progress=False)
     assert lim and all(r["limit"] is None and not r["detectable"] for r in lim)
     assert all(r.get("experiment") for r in lim if r["kind"] == "library")
-    md = "\n".join(rp.limits_markdown(lim))
+    md = "\n".join(limits.limits_markdown(lim))
     assert "not detectable at any magnitude" in md
 
 
 def test_degenerate_explanations_are_flagged():
     ok = {"found": [{"key": "k", "effect": "accel_quadratic_nonlinearity", "parameters": [{"name": "a", "value": 1.0}]}],
           "goodness_of_fit": {"after": {"chi2": 10.0, "dof": 12}}}
-    assert rp.degenerate_accepted(ok) == []
+    assert limits.degenerate_accepted(ok) == []
     g = {"found": [{"key": "gravity_error", "effect": "gravity_error",
                     "parameters": [{"name": "delta_g_m_s2", "value": 4.9}]}],
          "goodness_of_fit": {"after": {"chi2": 1e-23, "dof": 12}}}
-    bad = rp.degenerate_accepted(g)
+    bad = limits.degenerate_accepted(g)
     assert len(bad) == 2 and "4.9" in bad[0] and "dof" in bad[1]
 
 

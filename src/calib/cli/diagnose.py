@@ -67,10 +67,10 @@ def _diagnose(a):
     with output_set():   # the report, its figures and its detection limits: all of them or none
         rep = diagnose(a.recording, settings, out_dir=a.out, intervals=intervals, intervals_source=source)
         if a.limits:   # detection limits on this recording's own noise, added to the report
-            from calib.studies import real_proof
+            from calib.diagnosis.limits import limits_into_report
 
-            rep = real_proof.limits_into_report(a.recording, a.out, rep, settings, reps=a.limits_reps,
-                                                intervals=intervals, intervals_source=source)
+            rep = limits_into_report(a.recording, a.out, rep, settings, reps=a.limits_reps, intervals=intervals,
+                                     intervals_source=source)
     emit(json.dumps({k: rep[k] for k in ("verdict",) if k in rep}, indent=2))
     return {"adequate": 0, "missing_physics": 1}.get(rep["verdict"], 3)   # exit code: 3 inconclusive
 

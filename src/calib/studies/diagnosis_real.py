@@ -8,13 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from calib.calibration import objectives as ob
-from calib.diagnosis import (DEFAULT_SETTINGS, TO_MODEL, Problem, diagnose_dataset, inconclusive_report,
+from calib.diagnosis import (DEFAULT_SETTINGS, Problem, diagnose_dataset, inconclusive_report,
                              rate_readings, report_markdown)
+from calib.diagnosis.limits import ACCEL_TERMS, add_accel_term, norm_accel_model
 from calib.ingest import importers
 from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
 from calib.signal import detect
-from calib.sim import effects, physical
+from calib.sim import effects
 from calib.studies.diagnosis_score import truth_value
 
 def import_real(settings_path):
@@ -26,30 +26,6 @@ def import_real(settings_path):
         det = detect.detect_in_recording(ds)
         ds = detect.add_segment_table(ds, det)
     return ds
-
-
-#: the accelerometer terms that can be injected into a real recording (the physical transfer function of
-#: :mod:`calib.sim.physical`), and their size parameter (registry units)
-ACCEL_TERMS = {"accel_quadratic_nonlinearity": "k2_ug_per_g2", "accel_cubic_nonlinearity": "k3_ug_per_g3",
-               "accel_scale_asymmetry": "asym_ppm"}
-
-
-def norm_accel_model(prob: Problem):
-    """The accelerometer model the norm calibration ``prob`` identifies: ``(gain, b)`` per axis, gain = K_i conv
-    (reading units per g of sensor-axis input; K_i = |row i of K E|), b the bias (reading units)."""
-    M, b = ob.Form("tri9").KE_b(prob.base_theta)
-    return np.linalg.norm(M, axis=1) * TO_MODEL[prob.geom.units_in["accel"]], b
-
-
-def add_accel_term(y, gain, b, eid: str, values):
-    """Rate readings ``y`` (n, 3) with the term ``eid`` of sizes ``values`` (3,) (registry units) added through
-    the physical transfer function on the sensor-axis input u = (y - b) / gain: y + gain (h(u) - u)."""
-    if eid not in ACCEL_TERMS:
-        raise ValueError(f"inject: {eid!r} cannot be injected into a real recording; one of {sorted(ACCEL_TERMS)}")
-    u = (y - b) / gain                                      # sensor-axis input [g]
-    v = np.asarray(values, dtype=float) * 1e-6
-    h = physical.transfer(u, *(v if eid == k else None for k in ACCEL_TERMS))
-    return y + gain * (h - u)
 
 
 def inject_accel_term(ds, prob: Problem, eid: str, params: dict):

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.diagnosis import AXES
+from calib.diagnosis.limits import alias_keys
 
 def _truth_effects(truth) -> dict:
     """The ``effects`` of a truth sidecar (a path or its content)."""
@@ -51,11 +52,6 @@ def injected_keys(eff_params: dict) -> set:
         else:
             out.add(eid)
     return out
-
-
-def alias_keys(entry):
-    """Library keys of a found term and of its reported aliases."""
-    return {entry["key"]} | {a["key"] for a in entry.get("aliases", []) if "key" in a}
 
 
 def alias_group(entry):
