@@ -54,7 +54,47 @@ rule drift_validation:
         "../scripts/drift_validation.py"
 
 
+# The noise-seed study's seeds as [first, stop) blocks of near-equal size, in order, one job each: at most
+# NOISE_SEEDS_PER_JOB seeds a block (about 1.5 s of one core a seed at the default settings) and at least two blocks
+# (so that a local run uses both cores). Every seed draws from its own streams (its index), so the gathered
+# products do not depend on the blocks.
+NOISE_SEEDS_PER_JOB = 15
+_NS_N = int(config["drift"].get("noise_seeds", 0))
+_NS_K = max(-(-_NS_N // NOISE_SEEDS_PER_JOB), min(_NS_N, 2))
+NOISE_SEED_BLOCKS = [f"{round(i * _NS_N / _NS_K)}_{round((i + 1) * _NS_N / _NS_K)}" for i in range(_NS_K)]
+
+
+rule drift_noise_seeds_block:
+    """A block of seeds of the noise-seed study (seeds first .. stop - 1)."""
+    output:
+        part=temp(f"{R}/drift/noise_seeds_parts/{{first}}_{{stop}}.json"),
+    params:
+        session=sub("navigation_session"),
+        site=sub("site"),
+        drift=sub("drift"),
+        seed=session_seed(config["seeds"]["data"], "drift_noise_seeds"),
+        # the block's own scratch folder (one seed's recording at a time) inside the study's, removed when empty
+        workdir=lambda w, output: os.path.join(os.path.dirname(os.path.dirname(output.part)), "tmp_noise_seeds",
+                                               f"{w.first}_{w.stop}"),
+    wildcard_constraints:
+        first="[0-9]+",
+        stop="[0-9]+",
+    threads: 1
+    log:
+        f"{R}/logs/drift_noise_seeds/{{first}}_{{stop}}.log",
+    benchmark:
+        f"{R}/benchmarks/drift_noise_seeds_block.{{first}}_{{stop}}.tsv"
+    conda:
+        "../envs/calib.yaml"
+    script:
+        "../scripts/drift_noise_seeds_block.py"
+
+
 rule drift_noise_seeds:
+    """The drift estimators over many noise seeds against the Cramér–Rao bound (gathered from the seed blocks'
+    jobs; the bound is computed here, once)."""
+    input:
+        parts=expand(f"{R}/drift/noise_seeds_parts/{{block}}.json", block=NOISE_SEED_BLOCKS),
     output:
         nc=f"{R}/drift/noise_seeds.nc",
         table=report(f"{R}/drift/noise_seeds.csv", category="4 Gyro drift (He 2019)", caption="../report/noise_seeds.rst"),
@@ -65,7 +105,10 @@ rule drift_noise_seeds:
         site=sub("site"),
         drift=sub("drift"),
         seed=session_seed(config["seeds"]["data"], "drift_noise_seeds"),
+        # the study's scratch folder, which holds the blocks' own: removed here when they have left it empty
         workdir=lambda w, output: os.path.join(os.path.dirname(output.nc), "tmp_noise_seeds"),
+    # the bound's QR decomposition runs in the linear-algebra library's threads, and its last bits depend on their
+    # number (3 h window): the same 2 threads wherever the study runs keep its products the same
     threads: 2
     log:
         f"{R}/logs/drift_noise_seeds.log",

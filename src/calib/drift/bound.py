@@ -182,12 +182,21 @@ def noise_factor(t, lat, h=0.0, q_gyro=0.0, q_accel=0.0, meas_sigma=None) -> np.
     return K
 
 
-def fisher_information(J, K):
-    """F = J^T Sigma^-1 J with Sigma = K K^T, by a QR decomposition of the row-scaled K^T (no inverse of Sigma).
+@dataclass
+class ObservationNoise:
+    """The observation covariance Sigma = K K^T in the form the Fisher information needs: the rows' standard
+    deviations ``s`` (sqrt diag Sigma) and the triangular ``R`` with ``Sigma_s = R^T R`` for the row-scaled Sigma,
+    with ``cond`` the condition number of Sigma_s. It depends on the noise and the output instants only, so the
+    bounds of several parameter sets over the same data share it (:func:`drift_bounds`)."""
 
-    Returns (F, condition number of the unit-diagonal Sigma). Raises if Sigma is singular to working precision.
-    """
-    J = np.asarray(J, float)
+    s: np.ndarray
+    R: np.ndarray
+    cond: float
+
+
+def observation_noise(K) -> ObservationNoise:
+    """:class:`ObservationNoise` of ``Sigma = K K^T`` by a QR decomposition of the row-scaled K^T (no inverse of
+    Sigma). Raises if Sigma is singular to working precision."""
     K = np.asarray(K, float)
     s = np.linalg.norm(K, axis=1)  # sqrt(diag Sigma)
     if np.any(s == 0):
@@ -197,9 +206,20 @@ def fisher_information(J, K):
     d = np.abs(np.diag(R))
     if d.min() <= 1e-15 * d.max():
         raise ValueError("the observation covariance is singular to working precision: observe less densely")
-    W = scipy.linalg.solve_triangular(R, J / s[:, None], trans="T")  # R^-T J_s
     sv = np.linalg.svd(R, compute_uv=False)
-    return W.T @ W, float((sv[0] / sv[-1]) ** 2)
+    return ObservationNoise(s, R, float((sv[0] / sv[-1]) ** 2))
+
+
+def fisher_information(J, K):
+    """F = J^T Sigma^-1 J with Sigma = K K^T (``K`` or its :class:`ObservationNoise`), by a triangular solve with
+    the Cholesky factor of the row-scaled Sigma (no inverse of Sigma).
+
+    Returns (F, condition number of the unit-diagonal Sigma). Raises if Sigma is singular to working precision.
+    """
+    J = np.asarray(J, float)
+    noise = K if isinstance(K, ObservationNoise) else observation_noise(K)
+    W = scipy.linalg.solve_triangular(noise.R, J / noise.s[:, None], trans="T")  # R^-T J_s
+    return W.T @ W, noise.cond
 
 
 def null_directions(J, scale, tol=NULL_TOL) -> np.ndarray:
@@ -254,12 +274,26 @@ def drift_bound(window_h, dt_out, lat, C_bn, h=0.0, q_gyro=0.0, q_accel=0.0, con
     every ``dt_out`` s, for white gyro and accelerometer noise of PSDs ``q_gyro`` [rad^2/s], ``q_accel``
     [m^2/s^3]. ``accel_bias_known``: the bound when the accelerometer bias is given (drift-only estimators:
     the model they fit), else the bias is a nuisance parameter estimated with the drift."""
+    return drift_bounds(window_h, dt_out, lat, C_bn, h, q_gyro, q_accel, condition, meas_sigma,
+                        accel_bias_known=(accel_bias_known,))[0]
+
+
+def drift_bounds(window_h, dt_out, lat, C_bn, h=0.0, q_gyro=0.0, q_accel=0.0, condition="true_attitude",
+                 meas_sigma=None, accel_bias_known=(False, True)) -> tuple:
+    """:func:`drift_bound` for each entry of ``accel_bias_known``, in that order, over the same data: the
+    sensitivities and the observation noise (its QR decomposition, the costly part) are computed once. Each bound
+    is the same, to the bit, as :func:`drift_bound` of that entry alone."""
     t = observation_times(window_h, dt_out)
-    p = 3 if accel_bias_known else len(PARAMETERS)
-    J = sensitivity_matrix(t, lat, C_bn, h, condition)[:, :p]
-    scale = np.linalg.norm(sensitivity_matrix(t, lat, C_bn, h, "true_attitude")[:, :p], axis=0)
-    K = noise_factor(t, lat, h, q_gyro, q_accel, meas_sigma)
-    F, cond_s = fisher_information(J, K)
-    null = null_directions(J, scale)
-    cov, sigma, ident, cond_f = bound_from_fisher(F, scale, null)
-    return DriftBound(PARAMETERS[:p], UNITS[:p], sigma, cov, F, ident, J.shape[0], cond_s, cond_f, null / scale[:, None])
+    J_all = sensitivity_matrix(t, lat, C_bn, h, condition)
+    scale_all = np.linalg.norm(sensitivity_matrix(t, lat, C_bn, h, "true_attitude"), axis=0)
+    noise = observation_noise(noise_factor(t, lat, h, q_gyro, q_accel, meas_sigma))
+    out = []
+    for known in accel_bias_known:
+        p = 3 if known else len(PARAMETERS)
+        J, scale = J_all[:, :p], scale_all[:p]
+        F, cond_s = fisher_information(J, noise)
+        null = null_directions(J, scale)
+        cov, sigma, ident, cond_f = bound_from_fisher(F, scale, null)
+        out.append(DriftBound(PARAMETERS[:p], UNITS[:p], sigma, cov, F, ident, J.shape[0], cond_s, cond_f,
+                              null / scale[:, None]))
+    return tuple(out)

@@ -8,9 +8,11 @@ Called by the workflow rules ``drift_pso`` and ``drift_validation`` and by ``cal
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 import xarray as xr
@@ -32,7 +34,7 @@ from calib.sim.static_session import simulate_static_session
 from calib.signal import allan
 from calib.core.rotations import dcm_to_euler
 from calib.core import seeds
-from calib.io.atomic import write_text
+from calib.io.atomic import write_json, write_text
 
 AXES = ["x", "y", "z"]
 #: He 2019 Table 1 (PSOBE, 50 tests) and its Ac values (§IV.A), for comparison
@@ -48,10 +50,27 @@ def attitude_rad(att: dict):
 def drift_crb(session: dict, win, dt_out: float, condition: str, accel_bias_known: bool = False):
     """The Cramér–Rao bound (:class:`calib.drift.bound.DriftBound`) of the session's drift over the estimators'
     output instants of ``win`` (every ``dt_out`` s), for the simulator's noise densities of ``session``."""
-    n_out = len(win.Dtheta) // max(1, int(round(dt_out / win.dt_nav)))
-    q_g, q_a = crb_bound.noise_psd(session, win.sample_rate_hz)
-    return crb_bound.drift_bound(n_out * dt_out / 3600.0, dt_out, win.lat0, win.init.cbn(), win.h0, q_g, q_a,
-                                 condition, accel_bias_known=accel_bias_known)
+    return crb_pair(session, window_geometry(win, dt_out), condition, (accel_bias_known,))[0]
+
+
+def window_geometry(win, dt_out: float) -> dict:
+    """What the bound needs of a window (:func:`crb_pair`), as plain numbers that JSON carries exactly: the number
+    of navigation steps, their interval, the sample rate, the latitude [rad], height [m] and C_b^n of the start,
+    and the output interval [s]."""
+    return {"n_steps": int(len(win.Dtheta)), "dt_nav": float(win.dt_nav), "sample_rate_hz": float(win.sample_rate_hz),
+            "lat0": float(win.lat0), "h0": float(win.h0), "C_bn": np.asarray(win.init.cbn(), float).tolist(),
+            "dt_out": float(dt_out)}
+
+
+def crb_pair(session: dict, geom: dict, condition: str, accel_bias_known=(False, True)) -> tuple:
+    """The bounds of :func:`drift_crb` for a window of :func:`window_geometry`, one per entry of
+    ``accel_bias_known`` (by default: the accelerometer biases as nuisance, then known), sharing the observation
+    noise (:func:`calib.drift.bound.drift_bounds`)."""
+    dt_out = geom["dt_out"]
+    n_out = geom["n_steps"] // max(1, int(round(dt_out / geom["dt_nav"])))
+    q_g, q_a = crb_bound.noise_psd(session, geom["sample_rate_hz"])
+    return crb_bound.drift_bounds(n_out * dt_out / 3600.0, dt_out, geom["lat0"], np.asarray(geom["C_bn"], float),
+                                  geom["h0"], q_g, q_a, condition, accel_bias_known=tuple(accel_bias_known))
 
 
 def _finite(v):
@@ -103,9 +122,9 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
     arw, white = noise_psd(session)
     dt_out = cost.out_every * win.dt_nav
     cond = dcfg["initial_condition"]
-    bnd = drift_crb(session, win, dt_out, cond)
+    bnd, bnd_known = crb_pair(session, window_geometry(win, dt_out), cond)
     crb_deg_h = bnd.sigma_deg_h()
-    crb_known_deg_h = drift_crb(session, win, dt_out, cond, accel_bias_known=True).sigma_deg_h()
+    crb_known_deg_h = bnd_known.sigma_deg_h()
     log(f"Cramér–Rao bound (1 sigma, nuisance: horizontal accelerometer biases, initial condition {cond}): "
         f"{np.array2string(crb_deg_h, precision=6)} deg/h (accelerometer biases known: "
         f"{np.array2string(crb_known_deg_h, precision=6)}); {bnd.n_observations} observations, condition number "
@@ -388,6 +407,10 @@ def binomial_band(n: int, p: float = 0.95, level: float = 0.99):
     return int(binom.ppf(a, n, p)), int(binom.isf(a, n, p))
 
 
+#: the estimators of the noise-seed study, in the order of its tables
+NOISE_SEED_ESTIMATORS = ("kalman", "lls_with_accel_bias", "pso")
+
+
 def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dict, dcfg: dict, n_seeds: int,
                     seed0: int, workdir, prov=None, log=print):
     """Repeat the scenario over ``n_seeds`` noise realisations: the Kalman filter, the linear least squares with
@@ -398,42 +421,106 @@ def run_noise_seeds(out_nc, out_csv, fig, metrics_path, session: dict, site: dic
     spread over the seeds divided by the bound of the model the estimator fits (PSOBE fits the drift-only model:
     the bound with the accelerometer biases known). Acceptance (``consistent``): |z| <= 2 in a share of seeds
     inside the binomial 99 % band around 95 %, and std(z) in 0.85-1.15 -- unbiased and efficient.
+
+    One run of every seed (:func:`noise_seed_block`) and the products (:func:`noise_seed_products`); the workflow
+    runs blocks of seeds as jobs of their own and gathers them.
     """
+    block = noise_seed_block(session, site, dcfg, seed0, 0, n_seeds, workdir)
+    return noise_seed_products([block], out_nc, out_csv, fig, metrics_path, session, dcfg, n_seeds, seed0, prov,
+                               log=log, workdir=None)
 
-    with scratch_folder(workdir) as work:   # one seed's recording at a time
-        return _noise_seeds(out_nc, out_csv, fig, metrics_path, session, site, dcfg, n_seeds, seed0, work, prov, log)
 
+def noise_seed_block(session: dict, site: dict, dcfg: dict, seed0: int, first: int, stop: int, workdir,
+                     progress: bool = True) -> dict:
+    """Seeds ``first`` .. ``stop - 1`` of the noise-seed study: per seed, in order, the estimates [deg/h] of
+    :data:`NOISE_SEED_ESTIMATORS` and the Kalman filter's 1-sigma [deg/h]; with the window's
+    :func:`window_geometry` (the bound is computed once, from it, by :func:`noise_seed_products`).
 
-def _noise_seeds(out_nc, out_csv, fig, metrics_path, session, site, dcfg, n_seeds, seed0, workdir, prov, log):
-    truth = np.asarray(session["gyro_drift_deg_h"], float)
+    Seed ``k`` simulates its window from ``seeds.child_seed(seed0, "session", k)`` and runs PSOBE on the stream
+    ``("psobe_test", k)``: a block holds the same numbers as the same seeds of one run. Its recording lives in
+    the scratch folder ``workdir`` (made for the block, removed again when empty) one seed at a time.
+    """
+    first, stop = int(first), int(stop)
+    if not 0 <= first <= stop:
+        raise ValueError(f"noise seeds {first} .. {stop - 1}: expected 0 <= first <= stop")
     att = attitude_rad(session["attitude_deg"])
     arw, white = noise_psd(session)
     cond = dcfg["initial_condition"]
-    est = {"kalman": np.empty((n_seeds, 3)), "lls_with_accel_bias": np.empty((n_seeds, 3)),
-           "pso": np.empty((n_seeds, 3))}
+    n = stop - first
+    est = {m: np.empty((n, 3)) for m in NOISE_SEED_ESTIMATORS}
+    kal = np.empty((n, 3))
     settings = pso.PSOSettings.from_config(dcfg["pso"])
-    crb = None
-    bar = Progress(n_seeds, "noise seeds")
+    geom = None
+    bar = Progress(n, f"noise seeds {first} .. {stop - 1}") if progress else None
     cfg = dict(session)
     cfg.update(mode="physical", duration_h=dcfg["window_h"], site={"latitude_deg": site["latitude_deg"],
                                                                  "height_m": site.get("height_m", 0.0)})
-    for k in range(n_seeds):
-        path = workdir / f"seed{k}.nc"
-        try:
-            simulate_static_session(cfg, seeds.child_seed(seed0, "session", k), path)
-            win = drift.load_window(path, dcfg["window_h"], dcfg["nav_rate_hz"], att, site.get("longitude_deg", 0.0))
-        finally:   # also when interrupted: no seed file is left behind
-            path.unlink(missing_ok=True)
-        cost = drift.NavigationCost(win, dcfg["output_interval_s"], dcfg["weights"], dcfg["position_unit"])
-        e, kal_sigma, _ = drift.kalman_baseline(cost, arw, cond, True, white, 1.0 / win.sample_rate_hz)
-        est["kalman"][k] = e
-        est["lls_with_accel_bias"][k] = drift.linear_lsq(cost, True)[0]
-        est["pso"][k] = pso.minimize(cost, seeds.stream(seed0, "psobe_test", k), settings).best
-        if crb is None:   # the same window and noise for every seed
-            dt_out = cost.out_every * win.dt_nav
-            crb = drift_crb(session, win, dt_out, cond).sigma_deg_h()
-            crb_known = drift_crb(session, win, dt_out, cond, accel_bias_known=True).sigma_deg_h()
-        bar(k + 1)
+    with scratch_folder(workdir) as work:   # one seed's recording at a time
+        for i, k in enumerate(range(first, stop)):
+            path = work / f"seed{k}.nc"
+            try:
+                simulate_static_session(cfg, seeds.child_seed(seed0, "session", k), path)
+                win = drift.load_window(path, dcfg["window_h"], dcfg["nav_rate_hz"], att,
+                                        site.get("longitude_deg", 0.0))
+            finally:   # also when interrupted: no seed file is left behind
+                path.unlink(missing_ok=True)
+            cost = drift.NavigationCost(win, dcfg["output_interval_s"], dcfg["weights"], dcfg["position_unit"])
+            est["kalman"][i], kal[i], _ = drift.kalman_baseline(cost, arw, cond, True, white, 1.0 / win.sample_rate_hz)
+            est["lls_with_accel_bias"][i] = drift.linear_lsq(cost, True)[0]
+            est["pso"][i] = pso.minimize(cost, seeds.stream(seed0, "psobe_test", k), settings).best
+            if geom is None:   # the same window for every seed
+                geom = window_geometry(win, cost.out_every * win.dt_nav)
+            if bar is not None:
+                bar(i + 1)
+    return {"first": first, "stop": stop, "estimates": est, "kalman_sigma": kal, "geometry": geom}
+
+
+def write_noise_seed_block(block: dict, path):
+    """A :func:`noise_seed_block` as JSON for the gathering job (floats to the last bit)."""
+    return write_json({"first": block["first"], "stop": block["stop"],
+                       "estimates": {m: np.asarray(v).tolist() for m, v in block["estimates"].items()},
+                       "kalman_sigma": np.asarray(block["kalman_sigma"]).tolist(), "geometry": block["geometry"]},
+                      path, strict=False)
+
+
+def read_noise_seed_blocks(paths) -> list:
+    """The blocks written by :func:`write_noise_seed_block`, in seed order (:func:`noise_seed_products` refuses a
+    gap or an overlap)."""
+    blocks = sorted((json.loads(Path(p).read_text()) for p in paths), key=lambda b: (b["first"], b["stop"]))
+    for b in blocks:
+        b["estimates"] = {m: np.asarray(v, dtype=float).reshape(-1, 3) for m, v in b["estimates"].items()}
+        b["kalman_sigma"] = np.asarray(b["kalman_sigma"], dtype=float).reshape(-1, 3)
+    return blocks
+
+
+def noise_seed_products(blocks: list, out_nc, out_csv, fig, metrics_path, session: dict, dcfg: dict, n_seeds: int,
+                        seed0: int, prov=None, log=print, workdir=None):
+    """The noise-seed table, dataset, metrics and figure (:func:`run_noise_seeds`) from the blocks of
+    :func:`noise_seed_block` (in seed order, together every seed once). The bound comes from the windows'
+    geometry, which every block must share. ``workdir``: the study's scratch folder, whose blocks' folders are
+    removed by now: removed too when empty."""
+    nxt = 0
+    for b in blocks:
+        if b["first"] != nxt:
+            raise ValueError(f"noise-seed blocks: seeds {min(nxt, b['first'])} .. {max(nxt, b['first']) - 1} "
+                             "missing or given twice")
+        nxt = b["stop"]
+    if nxt != n_seeds:
+        raise ValueError(f"drift.noise_seeds: {n_seeds} seeds configured, the blocks hold seeds 0 .. {nxt - 1}")
+    geoms = [b["geometry"] for b in blocks if b["stop"] > b["first"]]
+    if not geoms:
+        raise ValueError("drift.noise_seeds: the study needs at least one seed -- fix: set drift.noise_seeds >= 2")
+    if any(g != geoms[0] for g in geoms[1:]):
+        raise ValueError("noise-seed blocks: their windows differ (made with different drift settings) -- fix: "
+                         "remove the blocks and run them again")
+    if workdir is not None:
+        with contextlib.suppress(OSError):
+            Path(workdir).rmdir()
+    truth = np.asarray(session["gyro_drift_deg_h"], float)
+    cond = dcfg["initial_condition"]
+    est = {m: np.concatenate([b["estimates"][m] for b in blocks]) for m in NOISE_SEED_ESTIMATORS}
+    kal_sigma = np.concatenate([b["kalman_sigma"] for b in blocks])[-1]   # the same for every seed
+    crb, crb_known = (b.sigma_deg_h() for b in crb_pair(session, geoms[0], cond))
     names = list(est)
     own = {m: crb_known if m == "pso" else crb for m in names}   # the bound of the model each estimator fits
     z = np.array([(est[m] - truth) / crb for m in names])  # (method, seed, axis)
