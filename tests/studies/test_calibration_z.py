@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from calib.core.triad import PARAM_NAMES
 from calib.io import recording
 from calib.sim.calibration_session import (build_calibration_simulator, calibration_session_channels,
                                            calibration_session_dataset)
@@ -48,6 +49,15 @@ def test_parallel_in_memory_equals_serial_file_path(tmp_path, ccfg):
     assert mem[1] == ref[1] and par[1] == ref[1]  # the metrics (full float repr), byte for byte
     z = json.loads(ref[1])["z"]
     assert len(z) == 9 + 12 and all(np.isfinite(v["mean_z"]) for v in z.values())
+    # beside every parameter: the spread of the estimates, the Cramér–Rao bound and their ratio (3 seeds: loose)
+    assert all(v["sigma_crb"] > 0 and v["std_estimate"] > 0 for v in z.values())
+    assert all(v["efficiency_ratio"] == pytest.approx(v["std_estimate"] / v["sigma_crb"]) for v in z.values())
+    header = ref[0].splitlines()[0].split(",")
+    assert header[-4:] == ["std_estimate", "sigma_crb", "efficiency_ratio", "efficiency_note"]
+    # the paper's 12 accelerometer parameters from the norm: K and E have no bound (the triad's rotation), b has
+    crb = json.loads(ref[1])["crb"]
+    assert [n for n, v in crb["accel_paper12"]["sigma"].items() if v is None] == list(PARAM_NAMES[:9])
+    assert "not determined: Kx Ky Kz Exy Exz Eyx Eyz Ezx Ezy" in ref[0]
     # no scratch folder is left behind: the reference path removes its recordings and their folder, the in-memory
     # path makes none (an empty tmp_zscores stayed in the study's results/calibration)
     assert not (tmp_path / "files" / "work").exists() and not (tmp_path / "memory" / "work").exists()
@@ -100,3 +110,22 @@ def _assert_same_recording(a, b, ignore_attrs=frozenset()):
     assert ka == kb
     for k in ka:
         assert type(a.attrs[k]) is type(b.attrs[k]) and np.array_equal(a.attrs[k], b.attrs[k]), k
+
+
+def test_efficiency_note_only_above_two_and_says_what_is_left_out():
+    """A ratio above 2 on a determined parameter gets the information the estimator leaves out; none otherwise."""
+    assert cs.efficiency_note("gyro", "bx", 1.9) == ""
+    assert cs.efficiency_note("gyro", "bx", float("nan")) == ""
+    assert "Gauss-Markov bias between windows" in cs.efficiency_note("gyro", "bx", 2.5)
+    assert "unweighted" in cs.efficiency_note("accel", "Eyx", 3.0)
+    assert "," not in "".join(cs.efficiency_note(s, n, 3.0) for s in ("accel", "gyro") for n in ("Kx", "Exy", "bx"))
+
+
+def test_blocks_with_different_bounds_are_refused():
+    """Every block computes the session's bound from its first seed; blocks of different sessions are refused."""
+    a = {"accel": {"sigma": {"Kx": 1.0}}}
+    assert cs._one_bound([a, None, dict(a)]) == a
+    with pytest.raises(ValueError, match="bounds differ"):
+        cs._one_bound([a, {"accel": {"sigma": {"Kx": 2.0}}}])
+    with pytest.raises(ValueError, match="no Cram"):
+        cs._one_bound([None, None])

@@ -41,6 +41,7 @@ from calib.sim import effects as sim_effects
 from calib.sim import physical
 from calib.sim.calibration_session import build_calibration_simulator
 from calib.sim.counts_engine import noise_terms, temperature_profile
+from calib.signal.noisecov import PULSE_COUNTER_Q, MeanNoiseModel
 
 AXES = ("x", "y", "z")
 #: parameters that fix the form of an effect, not its size (held at their true values)
@@ -75,6 +76,30 @@ def noise_spectrum(sim, n: int) -> np.ndarray:
         quant = (2.0 - 2.0 * np.cos(w)) / 12.0 if nz["quantize"] else 0.0
         S[c] = white + gm + quant
     return S
+
+
+def mean_noise_models(sim) -> dict:
+    """The simulator's noise as the noise model of window means of the rate reading [count s-1] per triad
+    (:class:`calib.signal.noisecov.MeanNoiseModel`, whose covariance of window means the calibration bound
+    :mod:`calib.calibration.bound` uses): white density ``N = K sigma_w / sqrt(dt)`` [count s-1 s^1/2] (sigma_w the
+    per-sample white noise in input unit s), the pulse counter's carried remainder ``Q = 1/sqrt(12)`` count when
+    quantised, and the bias instability ``K sigma_b`` [count s-1] with correlation time ``tau`` (first-order
+    Gauss-Markov, the AR(1) of the engine with a = exp(-dt / tau)) or, for a random walk from zero at the first
+    sample, the density ``K sigma_b / sqrt(tau)`` [count s-1 s^-1/2]. Returns ``{"accel": model, "gyro": model}``."""
+    dt = 1.0 / float(sim.sample_rate_hz)
+    nz = sim.noise
+    sig_w, sig_b, tau = noise_terms(nz, dt)
+    gm = nz["bias_model"] == "gauss_markov"
+    out = {}
+    for name, model, sl in (("accel", sim.accel, slice(0, 3)), ("gyro", sim.gyro, slice(3, 6))):
+        K = np.asarray(model.K, dtype=float)
+        q = PULSE_COUNTER_Q if nz["quantize"] else 0.0
+        out[name] = MeanNoiseModel(
+            unit="count s-1", Q=np.full(3, q), N=K * sig_w[sl] / math.sqrt(dt),
+            slow=["gm" if gm else "rw"] * 3, sigma=K * sig_b[sl] if gm else np.zeros(3),
+            tc=tau[sl].astype(float), K=np.zeros(3) if gm else K * sig_b[sl] / np.sqrt(tau[sl]),
+            source="the simulator's noise settings")
+    return out
 
 
 def _names(eid: str, params: dict):

@@ -17,6 +17,7 @@ import xarray as xr
 
 from calib.calibration import fit as cal
 from calib.figures import style as figures
+from calib.calibration import bound as calbound
 from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
 from calib.signal import noisecov
@@ -30,6 +31,7 @@ from calib.core import seeds
 from calib.io.atomic import json_default, make_folder, scratch_folder, strict_json, write_json, write_text
 from calib.sim.calibration_session import (build_calibration_simulator, calibration_session_channels,
                                            calibration_session_dataset)
+from calib.sim.fisher import mean_noise_models
 from calib.sim.static_session import static_counts_dataset
 from calib.sim.truth import calibration_truth
 
@@ -503,6 +505,20 @@ def z_noise_mode(ccfg: dict) -> str:
     return str(ccfg.get("z_noise_record", "per_seed"))
 
 
+#: what the default calibration's estimators leave out of the information the bound uses, by (sensor, first letter
+#: of the parameter: K, E, b), written beside a ratio above :data:`EFFICIENCY_FLAG` (:func:`efficiency_note`)
+EFFICIENCY_REASONS = {
+    **{("accel", c): "eq. 7 is unweighted and treats the static means as independent: it leaves out the "
+                     "correlation of the slow bias between the means (and any difference in their noise) that the "
+                     "bound weights by" for c in "KEb"},
+    **{("gyro", c): "eq. 25 takes K E from the + / - pair differences alone with the windows independent: it leaves "
+                    "out the Earth-rate information of the static means and the correlation of the slow bias "
+                    "between windows" for c in "KE"},
+    ("gyro", "b"): "the biases are a weighted mean of the pair and static means taken as independent: the "
+                   "correlation of the Gauss-Markov bias between windows (by which generalised least squares tells "
+                   "the constant bias from the slow one) is left out",
+}
+
 #: the state of one z-score study, set before the seeds run (and inherited by the forked workers)
 _Z: dict = {}
 
@@ -518,17 +534,19 @@ def _as_loaded(ds: xr.Dataset, path) -> xr.Dataset:
     return ds
 
 
-def _z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files: bool) -> dict:
+def _z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files: bool, bound_seed=None) -> dict:
     """Everything the seeds of the z-score study share. ``files``: every seed writes its recordings to
     ``workdir`` and reads them back (the reference path); otherwise the recordings stay in memory and what does
     not depend on the noise seed (the clean increments of the calibration path, its table angle and segment table,
     the truth) is computed once: the sensor models, effects and site of ``build_calibration_simulator`` do not
-    depend on the seed, only the noise does."""
+    depend on the seed, only the noise does. ``bound_seed``: the seed whose windows give the Cramér–Rao bound
+    (the simulator's noise as the noise model of the window means, :func:`calib.sim.fisher.mean_noise_models`)."""
     ctx = {"session": session, "site": site, "ccfg": ccfg, "seed0": seed0, "check": check, "mode": mode,
-           "shared": shared, "workdir": Path(workdir), "files": bool(files)}
+           "shared": shared, "workdir": Path(workdir), "files": bool(files), "bound_seed": bound_seed}
+    cfg = stages.calibration_cfg(session, site)
+    sim = build_calibration_simulator(cfg, seeds.child_seed(seed0, "session", 0))
+    ctx["noise_models"] = mean_noise_models(sim)
     if not files:
-        cfg = stages.calibration_cfg(session, site)
-        sim = build_calibration_simulator(cfg, seeds.child_seed(seed0, "session", 0))
         # the truth sidecar as read back from its JSON file (floats round-trip exactly through JSON)
         truth = json.loads(json.dumps(strict_json(calibration_truth(sim)), default=json_default))
         ctx.update(sim=sim, clean=sim.clean_increments(), channels=calibration_session_channels(sim),
@@ -539,7 +557,10 @@ def _z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files: bo
 
 def _z_seed(k: int):
     """Seed ``k`` of the z-score study (state in :data:`_Z`): the z-scores of the default calibration with the
-    segment-only sigma and (noise record) with the noise model, and the parameter names."""
+    segment-only sigma and (noise record) with the noise model, the parameter names, the errors of the estimates
+    (estimate - truth; the estimates do not depend on the sigma model) and, for the seed ``bound_seed``, the
+    Cramér–Rao bounds of the session (:func:`calib.calibration.bound.session_bounds`: its windows, the truth and
+    the simulator's noise; no estimator), else None."""
     c = _Z
     seed0, ccfg, workdir, mode = c["seed0"], c["ccfg"], c["workdir"], c["mode"]
     rec, tru = workdir / f"s{k}.nc", workdir / f"s{k}.truth.json"
@@ -579,9 +600,13 @@ def _z_seed(k: int):
         d = default_calibration(inp, ccfg, seeds.child_seed(seed0, "calibration", k), noise=nz)
         g = d["gyro"]
         tg = _match(g, truth_vector(truth, "gyro")) if tg is None else tg
-        out[key] = {"accel": (d["accel"].x - t9) / d["accel"].se, "gyro": (g.x - tg) / g.se}
+        err = {"accel": d["accel"].x - t9, "gyro": g.x - tg}
+        out[key] = {"accel": err["accel"] / d["accel"].se, "gyro": err["gyro"] / g.se}
         names = {"accel": d["accel"].names, "gyro": g.names}
-    return out, names
+    crb = None
+    if k == c["bound_seed"]:
+        crb = calbound.bounds_json(calbound.session_bounds(inp, ta, truth_vector(truth, "gyro"), c["noise_models"]))
+    return out, names, err, crb
 
 
 def run_z_seeds(session: dict, site: dict, ccfg: dict, n_seeds: int, seed0: int, out_csv, fig, metrics_path,
@@ -612,8 +637,9 @@ def z_seed_block(session: dict, site: dict, ccfg: dict, seed0: int, first: int, 
                  progress: bool = True) -> list:
     """Seeds ``first`` .. ``stop - 1`` of the z-score study (:func:`run_z_seeds`; the workflow runs blocks of seeds
     as jobs of their own and gathers them with :func:`z_products`): per seed, in order, its z-scores (``{"with" |
-    "segment": {"accel" | "gyro": array}}``) and the parameter names. Every seed derives its own seeds from
-    ``seed0`` and its index, so a block holds the same numbers as the same seeds of one run."""
+    "segment": {"accel" | "gyro": array}}``), the parameter names, the errors of the estimates (``{"accel" |
+    "gyro": array}``) and the Cramér–Rao bounds (the block's first seed; None for the others). Every seed derives
+    its own seeds from ``seed0`` and its index, so a block holds the same numbers as the same seeds of one run."""
     mode = z_noise_mode(ccfg)
     if mode == "per_seed" and check is None:
         raise ValueError("calibration.noise_record is set: the z-score study needs the static_check settings (check)")
@@ -628,7 +654,7 @@ def z_seed_block(session: dict, site: dict, ccfg: dict, seed0: int, first: int, 
         shared = recording.load(noise_record) if mode == "shared" else None
         bar = Progress(len(ks), "noise seeds") if progress else None
         _Z.clear()
-        _Z.update(_z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files))
+        _Z.update(_z_setup(session, site, ccfg, seed0, check, mode, shared, workdir, files, bound_seed=int(first)))
         try:
             workers = max(1, min(int(workers), len(ks)))
             if workers > 1:
@@ -655,7 +681,9 @@ def write_z_block(results: list, first: int, path) -> Path:
     """Seeds ``first`` .. of :func:`z_seed_block` as JSON for the gathering job (arrays as lists: floats to the
     last bit, NaN kept)."""
     items = [{"z": {key: {s: np.asarray(v).tolist() for s, v in d.items()} for key, d in out.items()},
-              "names": {s: list(v) for s, v in names.items()}} for out, names in results]
+              "names": {s: list(v) for s, v in names.items()},
+              "error": {s: np.asarray(v).tolist() for s, v in err.items()}, "bound": crb}
+             for out, names, err, crb in results]
     return write_json({"first": int(first), "stop": int(first) + len(items), "seeds": items}, path, strict=False)
 
 
@@ -667,28 +695,74 @@ def read_z_blocks(paths) -> list:
         if b["first"] != nxt:
             raise ValueError(f"z-score seed blocks: seeds {nxt} .. {b['first'] - 1} missing or given twice")
         out += [({key: {s: np.asarray(v, dtype=float) for s, v in d.items()} for key, d in it["z"].items()},
-                 it["names"]) for it in b["seeds"]]
+                 it["names"], {s: np.asarray(v, dtype=float) for s, v in it["error"].items()}, it["bound"])
+                for it in b["seeds"]]
         nxt = b["stop"]
     return out
 
 
+#: an efficiency ratio above this on a determined parameter gets the reason beside it
+EFFICIENCY_FLAG = 2.0
+
+
+def efficiency_note(sensor: str, name: str, ratio: float) -> str:
+    """Why the default calibration's spread exceeds the bound by more than :data:`EFFICIENCY_FLAG` (empty when it
+    does not): the information the estimator leaves out that the bound uses."""
+    if not np.isfinite(ratio) or ratio <= EFFICIENCY_FLAG:
+        return ""
+    return EFFICIENCY_REASONS[(sensor, name[0])].replace(",", ";")   # a field of the CSV table
+
+
+def _one_bound(bounds: list) -> dict:
+    """The session's bound from the blocks (each computes it from its first seed's windows): all the same, or
+    refused (the seeds of one study share the segment table and the noise settings)."""
+    got = [b for b in bounds if b is not None]
+    if not got:
+        raise ValueError("z-score seed blocks: no Cramér–Rao bound gathered (every block computes one)")
+    for b in got[1:]:
+        if json.dumps(b, sort_keys=True) != json.dumps(got[0], sort_keys=True):
+            raise ValueError("z-score seed blocks: the blocks' Cramér–Rao bounds differ (different sessions?)")
+    return got[0]
+
+
+def _bound_comment(crb: dict) -> list:
+    """Comment lines of the z-score table on the bound: what each is the bound of, and what is not determined."""
+    out = ["sigma_crb: Cramer-Rao bound from the session's windows and the simulator's noise (white + "
+           "quantisation + Gauss-Markov bias; correlated between windows); no estimator run. std_estimate: "
+           "std of (estimate - truth) over the seeds; efficiency_ratio = std_estimate / sigma_crb"]
+    for key, b in crb.items():
+        und = [n for n, v in b["sigma"].items() if v is None]
+        out.append(f"{key} ({b['observe']} model; {b['of']}): "
+                   + ("all determined" if not und else "not determined: " + " ".join(und)))
+    return [line.replace(",", ";") for line in out]   # comment rows of a CSV: no field separators
+
+
 def z_products(results: list, ccfg: dict, n_seeds: int, out_csv, fig, metrics_path, log=print) -> dict:
-    """The z-score table, metrics and figure from every seed's result (:func:`z_seed_block`, in seed order)."""
+    """The z-score table, metrics and figure from every seed's result (:func:`z_seed_block`, in seed order).
+
+    Beside every parameter: the empirical std of the estimates over the seeds (``std_estimate``), the Cramér–Rao
+    bound of the session (``sigma_crb``; 'not determined' where the data do not determine it, never a number)
+    and the efficiency ratio std_estimate / sigma_crb, with the information the estimator leaves out where the
+    ratio exceeds :data:`EFFICIENCY_FLAG` (``efficiency_note``, :func:`efficiency_note`)."""
     if len(results) != n_seeds:
         raise ValueError(f"calibration.z_seeds: {n_seeds} seeds configured, {len(results)} results gathered")
     mode = z_noise_mode(ccfg)
     z = {"with": {"accel": [], "gyro": []}, "segment": {"accel": [], "gyro": []}}
+    errors = {"accel": [], "gyro": []}
     names = {}
-    for out, nm in results:
+    for out, nm, err, _ in results:
         for key, zz in out.items():
             for sensor in ("accel", "gyro"):
                 z[key][sensor].append(zz[sensor])
+        for sensor in ("accel", "gyro"):
+            errors[sensor].append(err[sensor])
         names = nm
+    crb = _one_bound([r[3] for r in results])
     main = "with" if mode != "none" else "segment"
-    header = "sensor,parameter,mean_z,std_z,n_seeds" + (",mean_z_segment_sigma,std_z_segment_sigma" if main == "with"
-                                                        else "")
+    header = ("sensor,parameter,mean_z,std_z,n_seeds" + (",mean_z_segment_sigma,std_z_segment_sigma" if main == "with"
+                                                         else "") + ",std_estimate,sigma_crb,efficiency_ratio,efficiency_note")
     rows = [header]
-    metrics = {"noise_record": mode, "n_seeds": n_seeds, "z": {}}
+    metrics = {"noise_record": mode, "n_seeds": n_seeds, "z": {}, "crb": crb}
     za = {key: {s: np.array(v) for s, v in d.items()} for key, d in z.items() if d["accel"]}
 
     def ms(a):
@@ -703,6 +777,14 @@ def z_products(results: list, ccfg: dict, n_seeds: int, out_csv, fig, metrics_pa
                 m0, s0 = ms(za["segment"][sensor][:, j])
                 row += f",{m0:.3f},{s0:.3f}"
                 ent.update(mean_z_segment_sigma=m0, std_z_segment_sigma=s0)
+            sd_e = float(np.std(np.array(errors[sensor])[:, j], ddof=1)) if n_seeds > 1 else float("nan")
+            bnd = crb[sensor]["sigma"].get(nm)
+            ratio = calbound.efficiency(sd_e, bnd)
+            note = efficiency_note(sensor, nm, ratio)
+            row += (f",{sd_e:.6g},{'not determined' if bnd is None else format(bnd, '.6g')},"
+                    f"{'' if not np.isfinite(ratio) else format(ratio, '.3f')},{note}")
+            ent.update(std_estimate=sd_e, sigma_crb=bnd, efficiency_ratio=None if not np.isfinite(ratio) else ratio,
+                       efficiency_note=note or None)
             rows.append(row)
             metrics["z"][f"{sensor}.{nm}"] = ent
     rows.append("# z = (estimate - truth) / standard error; sigma of the segment means: "
@@ -711,6 +793,7 @@ def z_products(results: list, ccfg: dict, n_seeds: int, out_csv, fig, metrics_pa
                                 "(static_check settings); *_segment_sigma: the segment-only sigma on the same seeds",
                     "shared": "noise model from the session's segments and the one static_check recording; "
                               "*_segment_sigma: the segment-only sigma on the same seeds"}[mode]))
+    rows += [f"# {line}" for line in _bound_comment(crb)]
     write_text(out_csv, "\n".join(rows) + "\n")
     write_text(metrics_path, json.dumps(metrics, indent=2))
     log("\n".join(rows))
