@@ -294,6 +294,9 @@ class FieldCalResult:
         for f in (self.accel, self.gyro):
             if f is not None and f.determination is not None:
                 out[f"{f.sensor}_determination"] = f.determination.as_dict()
+        for f in (self.accel, self.gyro):   # Cramér–Rao bounds (calib.fieldcal.bound), norm method
+            if f is not None and "sigma_crb" in f.extra:
+                out[f"{f.sensor}_sigma_crb"] = f.extra["sigma_crb"]
         out.update(self.metrics)
         out["notes"] = list(self.notes) + [f"accel: {n}" for n in a.notes] + \
             ([f"gyro: {n}" for n in self.gyro.notes] if self.gyro else [])

@@ -21,6 +21,7 @@ from calib.fieldcal.ferraris import LABEL_PATTERN, fit_ferraris
 from calib.fieldcal.gyroscope import direction_check, fit_gyro_directions, gyro_static_regression
 from calib.fieldcal.intervals import imu_tk_accel_search, mikoff_standstill
 from calib.fieldcal.units_check import UnitsCheck, UnitsCheckError, check_gyro_units
+from calib.fieldcal import bound as fieldcal_bound
 from calib.fieldcal import default_detection
 from calib.fieldcal.results import (
     DETECTION_KEYS_DETECT,
@@ -264,6 +265,7 @@ def _norm(inp: _Inputs, det_cfg: dict, notes: list, metrics: dict, x0=None):
             "estimate": f"bias: estimated, starting from the initial-rest mean [{init_span[0]}, {init_span[1]})",
             "statics": "bias: mean over all static samples"}[bias_mode])
         gyr_fit.notes.append(f"integration step: {gset.get('dt', 'nominal')}")
+        gyr_fit.extra["bias_mode"] = bias_mode
         metrics["gyro_direction_rms_deg"] = gyr_fit.residual_rms
         metrics["gyro_direction_rms_before_deg"] = gyr_fit.extra["rms_before_deg"]
         metrics["gyro_direction_max_deg"] = float(np.max(gyr_fit.extra["pair_angles_deg"]))
@@ -521,6 +523,8 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None, *, force: bool 
             metrics["direction_check_rms_deg"] = float(np.sqrt(np.mean(ang ** 2)))
             metrics["direction_check_max_deg"] = float(np.max(ang))
             metrics["direction_check_n_gaps"] = int(len(ang))
+    if method == "norm":   # the Cramér–Rao bound beside every parameter (calib.fieldcal.bound)
+        fieldcal_bound.attach(acc_fit, gyr_fit, acc_in, gyr_in, ds["accel"].values, iv, g)
     metrics["runtime_s"] = _time.perf_counter() - t_start
     return FieldCalResult(method=method, accel=acc_fit, gyro=gyr_fit, frame=frame, gravity_m_s2=g,
                           intervals=np.asarray(iv, dtype=np.int64).reshape(-1, 2), detection_rule=rule, source=src,
