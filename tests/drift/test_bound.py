@@ -11,7 +11,7 @@ from scipy import stats
 
 from calib.core import earth, seeds
 from calib.core.earth import DEG_PER_H
-from calib.core.rotations import rot_x, rot_y, rot_z
+from calib.core.rotations import euler_to_dcm, rot_x, rot_y, rot_z
 from calib.drift import bound
 from calib.drift import psobe
 from calib.nav import errormodel
@@ -198,3 +198,19 @@ def test_kalman_filter_is_efficient_on_the_drift_problem(drift_problem):
     var_ratio = est["kalman"].var(0, ddof=1) / full**2
     lo, hi = (stats.chi2.ppf(q, n - 1) / (n - 1) for q in (0.0005, 0.9995))
     assert np.all((var_ratio >= lo) & (var_ratio <= hi)), np.sqrt(var_ratio)
+
+
+@pytest.mark.parametrize("condition", ["true_attitude", "leveled"])
+def test_bounds_over_the_same_data_equal_each_bound_alone(condition):
+    """drift_bounds shares the observation noise's decomposition between the nuisance and the known-bias bound;
+    each is the bound drift_bound computes alone, to the bit (accelerometer noise on, a tilted unit)."""
+    C = euler_to_dcm(0.1, -0.2, 0.7)
+    q_a = (20e-6 * 9.80665) ** 2
+    pair = bound.drift_bounds(1.0, 60.0, LAT, C, 10.0, ARW**2, q_a, condition)
+    for known, b in zip((False, True), pair):
+        alone = bound.drift_bound(1.0, 60.0, LAT, C, 10.0, ARW**2, q_a, condition, accel_bias_known=known)
+        for f in ("sigma", "covariance", "fisher", "identifiable", "null"):
+            assert getattr(b, f).tobytes() == getattr(alone, f).tobytes(), f
+        assert (b.names, b.cond_sigma, b.cond_fisher, b.n_observations) == \
+            (alone.names, alone.cond_sigma, alone.cond_fisher, alone.n_observations)
+    assert len(pair[0].names) == 5 and len(pair[1].names) == 3

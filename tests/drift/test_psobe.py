@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from calib.calibration.optimizers import particle_swarm
 from calib.drift import psobe as drift
 from calib.drift import pso
 from calib.sim.static_session import simulate_static_session
@@ -95,3 +96,35 @@ def test_window_longer_than_recording_is_refused(tmp_path):
     simulate_static_session({"mode": "physical", "duration_h": 0.1, "site": {"latitude_deg": 30.58}}, 3, p)
     with pytest.raises(ValueError, match="window_h"):
         drift.load_window(p, 3.0, 2.0)
+
+
+def test_pso_evaluates_a_visited_position_once_with_the_same_result():
+    """The swarm's repeated positions are scored from the first evaluation (RowMemo): the run equals the plain
+    particle swarm on every evaluation, bit for bit, while the cost sees each position once. In the paper variant
+    (deterministic pulls, velocity clamp) particles come to rest on the best positions, so repeats occur."""
+    x0 = np.array([0.012, -0.007, 0.021])
+    seen = []
+
+    def bowl(X):
+        seen.extend(r.tobytes() for r in X)
+        return np.sum((X - x0) ** 2, axis=1) + 1e-3 * np.sum(np.abs(X), axis=1)
+
+    s = pso.PSOSettings(generations=80, v_max=0.002)
+    r = pso.minimize(bowl, np.random.default_rng(5), s)
+    plain = particle_swarm(lambda X: np.sum((X - x0) ** 2, axis=1) + 1e-3 * np.sum(np.abs(X), axis=1),
+                           np.full(3, s.lower), np.full(3, s.upper), np.random.default_rng(5), s.particles,
+                           s.generations, c1=s.c1, c2=s.c2, vlim=s.v_max, inertia=s.inertia,
+                           fixed_coefficients=(s.r1, s.r2), init_velocity="zero", gbest_update="strict",
+                           keep_trajectory=True)
+    assert r.best.tobytes() == plain.gbest.tobytes() and r.best_cost == plain.gcost
+    assert r.history.tobytes() == plain.history.tobytes()
+    assert r.positions.tobytes() == plain.trajectory.tobytes()
+    assert len(seen) == len(set(seen))   # no position evaluated twice
+    visited = {p.tobytes() for p in r.positions.reshape(-1, 3)}
+    assert len(seen) == len(visited) < s.particles * (s.generations + 1)
+
+
+def test_row_memo_refuses_a_cost_of_the_wrong_length():
+    memo = pso.RowMemo(lambda X: np.zeros(len(X) + 1))
+    with pytest.raises(ValueError, match="2 values for 1 particles"):
+        memo(np.zeros((3, 3)))
