@@ -3,7 +3,8 @@
 Model (Liu 2021 eqs. 1-4): ``N = K E x + b``; N rate reading [output unit; count s-1 for the synthetic unit:
 counts per sample / dt], x input in the body frame [input unit: g for accelerometers, deg/h for gyros].
 Applying a result to raw output: ``N = counts / dt`` (increment channels) or the sample itself (rate
-channels), then ``x = (K E)^-1 (N - b)`` (:meth:`CalibrationResult.apply`).
+channels), then ``x = (K E)^-1 (N - b)`` (:meth:`CalibrationResult.apply`, the triad's
+:class:`calib.core.triad.TriadCorrection`).
 
 The methods
 -----------
@@ -57,7 +58,7 @@ from calib.calibration import linear as lin
 from calib.calibration import objectives as ob
 from calib.calibration import optimizers as opt
 from calib.signal.segments import RotationMeans, RotationPairs, SegmentError, StaticMeans, require_positions
-from calib.core.triad import PARAM_NAMES, TriadModel, liu2021_bounds
+from calib.core.triad import PARAM_NAMES, TriadCorrection, TriadModel, liu2021_bounds
 
 FRAME_BODY = "body frame (as realised by the nominal table attitudes; Liu 2021: right-front-up)"
 FRAME_TRIAD = ("triad frame: x along the x sensor's sensitive axis, y in the plane of the x and y sensitive "
@@ -136,18 +137,16 @@ class CalibrationResult:
         return (f"N [{self.output_unit}] = counts / dt for increment channels (the sample itself for rate "
                 f"channels); x [{self.input_unit}, {short}] = (K E)^-1 (N - b)")
 
+    def correction(self) -> TriadCorrection:
+        """The identified model's correction (:class:`calib.core.triad.TriadCorrection`): x = (K E)^-1 (N - b),
+        in ``input_unit`` and :attr:`frame`, from rate readings N in ``output_unit``."""
+        return TriadCorrection.from_KE(self.sensor, self.KE, self.b, self.output_unit, self.input_unit,
+                                       frame=self.frame)
+
     def apply(self, raw, *, sample_kind: str = "rate", dt: float | None = None) -> np.ndarray:
-        """Calibrated input (n, 3) [input unit] from raw output (n, 3): x = (K E)^-1 (N - b)."""
-        raw = np.asarray(raw, dtype=float)
-        if sample_kind == "increment":
-            if not dt:
-                raise ValueError("increment samples need dt [s] to become a rate")
-            N = raw / dt
-        elif sample_kind == "rate":
-            N = raw
-        else:
-            raise ValueError(f"sample_kind must be 'rate' or 'increment', got {sample_kind!r}")
-        return np.linalg.solve(self.KE, (N - self.b).T).T
+        """Calibrated input (n, 3) [input unit] from raw output (n, 3): x = (K E)^-1 (N - b), N = raw (rate
+        samples) or raw / dt (increment samples)."""
+        return self.correction().apply(raw, sample_kind=sample_kind, dt=dt)
 
     def to_dict(self) -> dict:
         se = self.se

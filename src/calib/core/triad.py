@@ -21,6 +21,13 @@ Units of the synthetic unit (Liu 2021 does not state them; this is the project's
   -208 count s-1 is -0.026 deg/h, a plausible navigation-grade FOG.
 
 With these units the bounds of Liu 2021 Tables 1 and 3 contain the true values.
+
+Applying a calibration to raw samples is the inverse model, :class:`TriadCorrection` (eq. 5 there): one type and
+one ``apply`` for the turntable calibration (:mod:`calib.calibration.fit`), the field calibration
+(:mod:`calib.fieldcal`), the navigation (:mod:`calib.nav.navigation`), ``calib apply`` / ``calib export``
+(:mod:`calib.io.export_formats`) and an import's declared per-axis scale and sign (:mod:`calib.ingest.common`).
+:meth:`TriadModel.inverse` is the exact inverse of the forward model, which the simulation uses to find the input
+of a given output.
 """
 from __future__ import annotations
 
@@ -64,7 +71,8 @@ class TriadModel:
         return np.asarray(x) @ self.KE.T + self.b
 
     def inverse(self, n):
-        """Input estimate x = (K E)^-1 (N - b) for outputs ``n`` (..., 3)."""
+        """Input x = (K E)^-1 (N - b) for outputs ``n`` (..., 3), by solving the linear system (the simulation's
+        inverse; a calibration applied to samples is a :class:`TriadCorrection`)."""
         return np.linalg.solve(self.KE, (np.asarray(n) - self.b).T).T
 
     def to_vector(self) -> np.ndarray:
@@ -86,6 +94,104 @@ class TriadModel:
         for k, (i, j) in enumerate(OFFDIAG):
             E[i, j] = theta[3 + k]
         return cls(theta[0:3].copy(), E, theta[9:12].copy(), input_unit, output_unit)
+
+
+SAMPLE_KINDS = ("rate", "increment")
+
+
+@dataclass(frozen=True, eq=False)
+class TriadCorrection:
+    """The inverse model of one triad: the correction of its raw samples, the one way calib applies a calibration.
+
+        N = f r                 (``sample_kind`` rate)
+        N = f r / dt            (``sample_kind`` increment, dt the sample interval [s])
+        x = A (N - beta - G a)                                                              (5)
+
+    * ``r`` raw samples (..., 3) in the recording's unit; ``f`` ``factor`` (scalar, or one per axis) from it to the
+      *reading unit* ``reading_unit`` in which ``bias`` is stated (``N``: the rate reading);
+    * ``A`` ``matrix`` (3x3) [``output_unit`` per reading unit]: scale and misalignment; None for a triad whose
+      axes are not coupled (a declared per-axis scale and sign): x = N - beta, each axis on its own, so that a
+      NaN on one axis stays on that axis;
+    * ``beta`` ``bias`` (3,) [reading unit]; None: no offset;
+    * ``G`` ``g_sensitivity`` (3x3, gyros) [reading unit per m s-2]: the offset per unit calibrated specific force
+      ``a`` [m s-2] of the same samples; None: none;
+    * ``x`` in ``output_unit``, in ``frame``.
+
+    Of the forward model N = K E x + b (:class:`TriadModel`, Liu 2021 eqs. 1-4) with x in ``output_unit`` times
+    ``s`` and N = ``f_r`` times a rate reading: A = s (K E)^-1 f_r, beta = b / f_r, G = G_N / f_r
+    (:meth:`from_KE`, :meth:`from_model`, :meth:`from_vector`). A field calibration estimates A and beta directly
+    (lower-triangular or Ferraris form): construct the correction from them.
+    """
+
+    sensor: str
+    matrix: np.ndarray | None
+    bias: np.ndarray | None
+    reading_unit: str
+    output_unit: str
+    factor: float | np.ndarray = 1.0
+    frame: str = ""
+    g_sensitivity: np.ndarray | None = None
+
+    @classmethod
+    def from_KE(cls, sensor, KE, b, reading_unit, output_unit, *, output_factor=1.0, reading_factor=1.0,
+                g_sensitivity=None, frame="") -> "TriadCorrection":
+        """The correction of the forward model N = K E x + b: A = ``output_factor`` (K E)^-1 ``reading_factor``,
+        beta = b / ``reading_factor``, G = ``g_sensitivity`` / ``reading_factor``. ``output_factor``: from the
+        model's input unit to ``output_unit``; ``reading_factor``: from the rate reading (``reading_unit``) to the
+        model's output unit (N = reading_factor x reading)."""
+        A = output_factor * np.linalg.inv(np.asarray(KE, dtype=float)) * reading_factor
+        G = None if g_sensitivity is None else np.asarray(g_sensitivity, dtype=float) / reading_factor
+        return cls(sensor, A, np.asarray(b, dtype=float) / reading_factor, reading_unit, output_unit, frame=frame,
+                   g_sensitivity=G)
+
+    @classmethod
+    def from_model(cls, model: "TriadModel", sensor, *, output_unit=None, output_factor=1.0, reading_factor=1.0,
+                   reading_unit=None, g_sensitivity=None, frame="") -> "TriadCorrection":
+        """The correction of a :class:`TriadModel` (:meth:`from_KE`); by default to the model's input unit, from
+        readings in its output unit."""
+        return cls.from_KE(sensor, model.KE, model.b, model.output_unit if reading_unit is None else reading_unit,
+                           model.input_unit if output_unit is None else output_unit, output_factor=output_factor,
+                           reading_factor=reading_factor, g_sensitivity=g_sensitivity, frame=frame)
+
+    @classmethod
+    def from_vector(cls, theta, sensor, input_unit, output_unit="count s-1", **kw) -> "TriadCorrection":
+        """The correction of Liu's 12-parameter vector ``[Kx Ky Kz Exy Exz Eyx Eyz Ezx Ezy bx by bz]`` (eq. 8)."""
+        return cls.from_model(TriadModel.from_vector(theta, input_unit, output_unit), sensor, **kw)
+
+    def model(self) -> "TriadModel":
+        """The forward model N = K E x + b of this correction (x in ``output_unit``, N in ``reading_unit``): K E = A^-1
+        (the factor and the g-sensitivity are not part of it)."""
+        if self.matrix is None:
+            raise ValueError(f"{self.sensor}: a correction without a matrix (per-axis scale) has no triad model")
+        b = np.zeros(3) if self.bias is None else self.bias
+        return TriadModel.from_KE(np.linalg.inv(self.matrix), b, input_unit=self.output_unit,
+                                  output_unit=self.reading_unit)
+
+    def reading(self, raw, sample_kind: str = "rate", dt: float | None = None) -> np.ndarray:
+        """The rate reading N = f r (rate samples) or f r / dt (increment samples) of raw samples ``r``."""
+        N = np.ascontiguousarray(raw, dtype=np.float64) * self.factor
+        if sample_kind == "increment":
+            if not dt:
+                raise ValueError("increment samples need dt [s] to become a rate")
+            return N / dt
+        if sample_kind != "rate":
+            raise ValueError(f"sample_kind must be 'rate' or 'increment', got {sample_kind!r}")
+        return N
+
+    def correct(self, reading, accel=None) -> np.ndarray:
+        """x = A (N - beta - G a) of rate readings N (..., 3) in ``reading_unit``; ``accel`` the calibrated specific
+        force [m s-2] of the same samples (needed when ``g_sensitivity`` is set)."""
+        x = reading if self.bias is None else reading - self.bias
+        if self.g_sensitivity is not None:
+            if accel is None:
+                raise ValueError(f"the {self.sensor} correction is g-sensitive: give accel, the calibrated specific "
+                                 "force [m s-2] of the same samples")
+            x = x - np.asarray(accel, dtype=float) @ self.g_sensitivity.T
+        return x if self.matrix is None else x @ self.matrix.T
+
+    def apply(self, raw, *, sample_kind: str = "rate", dt: float | None = None, accel=None) -> np.ndarray:
+        """Corrected samples x (..., 3) [``output_unit``, ``frame``] of raw samples (eq. 5)."""
+        return self.correct(self.reading(raw, sample_kind, dt), accel)
 
 
 #: "Separate calibration results" of Liu 2021 Table 1 (accelerometers) and Table 3 (gyros):

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import xarray as xr
 
-from calib.core.triad import TriadModel
+from calib.core.triad import TriadCorrection, TriadModel
 from calib.calibration.identifiability import RankSummary, column_scaled, rank_summary, singular_spectrum
 
 #: messages for the console (and a rule's log): what the poses do not determine, refusals turned into warnings
@@ -197,17 +197,21 @@ class TriadFit:
     def param(self, name: str) -> float:
         return float(self.values[self.names.index(name)])
 
+    def correction(self) -> TriadCorrection:
+        """This calibration as the one correction of a triad (:class:`calib.core.triad.TriadCorrection`):
+        ``out = matrix (input_factor raw [/ dt] - bias [- g_sensitivity a])``."""
+        conv = input_label(self.sensor, self.input_units, self.input_kind)
+        return TriadCorrection(self.sensor, self.matrix, self.bias, conv, self.output_units,
+                               factor=self.input_factor, g_sensitivity=self.g_sensitivity)
+
     def model(self) -> TriadModel:
         """This calibration as the triad model N = K E x + b of :mod:`calib.core.triad` (the one representation
         of a triad's parameters): x in ``output_units``, N in the converted input units; K E = matrix^-1."""
-        conv = input_label(self.sensor, self.input_units, self.input_kind)
-        return TriadModel.from_KE(np.linalg.inv(self.matrix), self.bias, input_unit=self.output_units,
-                                  output_unit=conv)
+        return self.correction().model()
 
     def convert_input(self, raw) -> np.ndarray:
         """Raw samples (recording units) to the calibration's input units (counts, or SI rates)."""
-        x = np.asarray(raw, dtype=np.float64) * self.input_factor
-        return x / self.dt if self.input_kind == "increment" else x
+        return self.correction().reading(raw, self.input_kind, self.dt)
 
     def apply(self, raw, accel_calibrated=None) -> np.ndarray:
         """Calibrated output (``output_units``, body frame) of raw (n, 3) samples in the recording's units.
@@ -215,12 +219,9 @@ class TriadFit:
         A g-sensitive gyro (``g_sensitivity`` set) also needs the calibrated specific force [m s-2] of the
         same samples: ``out = matrix @ (N - bias - G a)``.
         """
-        x = self.convert_input(raw) - self.bias
-        if self.g_sensitivity is not None:
-            if accel_calibrated is None:
-                raise FieldCalError(f"{self.sensor} calibration is g-sensitive: pass accel_calibrated (m s-2)")
-            x = x - np.asarray(accel_calibrated, dtype=float) @ self.g_sensitivity.T
-        return x @ self.matrix.T
+        if self.g_sensitivity is not None and accel_calibrated is None:
+            raise FieldCalError(f"{self.sensor} calibration is g-sensitive: pass accel_calibrated (m s-2)")
+        return self.correction().apply(raw, sample_kind=self.input_kind, dt=self.dt, accel=accel_calibrated)
 
 
 @dataclass

@@ -488,8 +488,8 @@ def fieldcal_recording(path_or_ds, settings: dict | None = None, *, force: bool 
         rule = "segment labels of the recording (imucal x_p ... z_a, x_rot ... z_rot)"
         metrics["static_norm_rms_m_s2"] = acc_fit.residual_rms
         metrics["static_position_mean_norm_rms_m_s2"] = float(np.sqrt(np.mean(
-            (np.linalg.norm(((np.array([acc_in[statics[lab]].mean(axis=0) for lab in statics]) - acc_fit.bias)
-                             @ acc_fit.matrix.T), axis=1) - g) ** 2)))
+            (np.linalg.norm(acc_fit.correction().correct(np.array([acc_in[statics[lab]].mean(axis=0)
+                                                                  for lab in statics])), axis=1) - g) ** 2)))
         metrics["turn_angles_deg"] = {k: [float(x) for x in v] for k, v in gyr_fit.extra["turn_angles_deg"].items()}
         if not gset.get("enabled", True):
             gyr_fit = None

@@ -12,6 +12,7 @@ import numpy as np
 import yaml
 
 from calib.core import clock, dropouts, earth
+from calib.core.triad import TriadCorrection
 from calib.io import recording
 from calib.signal.detect import moving_variance_norm, window_samples
 from calib.io.recording import RecordingError
@@ -381,8 +382,11 @@ def check_gyro_peak(path, gyro, tri, fs):
 # --------------------------------------------------------------------------- assembly
 
 
-def apply_triad(raw, tri):
-    return np.ascontiguousarray(raw, dtype=np.float64) * tri["factor"]
+def apply_triad(raw, tri, sensor=""):
+    """The samples in the declared units: raw times the declared per-axis ``sign`` x ``scale`` (``tri`` of
+    :func:`triad_settings`), the triad's correction without a matrix or bias
+    (:class:`calib.core.triad.TriadCorrection`: each axis on its own)."""
+    return TriadCorrection(sensor, None, None, tri["units"], tri["units"], factor=tri["factor"]).apply(raw)
 
 
 def _window(settings, t_rel) -> tuple[int, int]:

@@ -43,7 +43,7 @@ import xarray as xr
 
 from calib import __version__
 from calib.core.errors import InputError
-from calib.core.triad import TriadModel
+from calib.core.triad import TriadCorrection, TriadModel
 from calib.io import EXPORT_FORMATS
 from calib.io.atomic import output_set, write_text
 from calib.io.netcdf import conventions, internal_units
@@ -83,18 +83,26 @@ class TriadCal:
         return s
 
     @property
+    def correction(self) -> TriadCorrection:
+        """The triad's correction of rate readings (:class:`calib.core.triad.TriadCorrection`), eq. (1)."""
+        return TriadCorrection.from_model(self.model, self.sensor, output_unit=SI[self.sensor],
+                                          output_factor=self.si_factor, reading_factor=self.factor,
+                                          reading_unit=self.rate_units, g_sensitivity=self.g_sensitivity)
+
+    @property
     def A(self) -> np.ndarray:
         """SI output per rate-reading unit, eq. (1)."""
-        return self.si_factor * np.linalg.inv(self.model.KE) * self.factor
+        return self.correction.matrix
 
     @property
     def beta(self) -> np.ndarray:
-        return np.asarray(self.model.b, dtype=float) / self.factor
+        return self.correction.bias
 
     @property
     def G_rate(self) -> np.ndarray:
         """g-sensitivity in rate-reading units per m s-2 (zeros when none)."""
-        return np.zeros((3, 3)) if self.g_sensitivity is None else np.asarray(self.g_sensitivity) / self.factor
+        G = self.correction.g_sensitivity
+        return np.zeros((3, 3)) if G is None else G
 
 
 @dataclass
@@ -120,14 +128,12 @@ class Calibration:
 
     def apply(self, accel_rate, gyro_rate=None):
         """Calibrated specific force [m s-2] (and angular rate [rad s-1]) of rate readings (n, 3), eq. (1)."""
-        a = (np.asarray(accel_rate, dtype=float) - self.accel.beta) @ self.accel.A.T
+        a = self.accel.correction.apply(accel_rate)
         if gyro_rate is None:
             return a
         if self.gyro is None:
             raise InputError("the calibration holds no gyro", file=self.source)
-        g = self.gyro
-        w = (np.asarray(gyro_rate, dtype=float) - g.beta - a @ g.G_rate.T) @ g.A.T
-        return a, w
+        return a, self.gyro.correction.apply(gyro_rate, accel=a)
 
     def how_to_apply(self) -> str:
         s = (f"accel [m s-2] = A_a (r_a - beta_a), r_a the accel rate reading in {self.accel.rate_units}")
@@ -185,7 +191,7 @@ def _from_fieldcal(p, d) -> Calibration:
         if not (np.all(np.isfinite(M)) and np.all(np.isfinite(bias))):
             raise InputError(f"non-finite {s} calibration", file=p, field=f"{s}_matrix")
         conv_units = rate_unit(units, kind) if units == "count" else SI[s]
-        model = TriadModel.from_KE(np.linalg.inv(M), bias, input_unit=out_units, output_unit=conv_units)
+        model = TriadCorrection(s, M, bias, conv_units, out_units).model()   # the field calibration's form
         G = np.asarray(d[f"{s}_g_sensitivity"].values, dtype=float) if f"{s}_g_sensitivity" in d else None
         ru = rate_unit(units, kind)
         triads[s] = TriadCal(s, model, factor, ru, ((units, kind),), G)

@@ -11,8 +11,8 @@ Raw samples to SI increments
   rates): :func:`calib.io.recording.to_si`.
 * counts: need a calibration object (:class:`Calibration` protocol) turning the raw *rate* reading
   (counts per second; for increment counts, counts / dt) into the SI rate in the body frame. For a pair of
-  :class:`calib.core.triad.TriadModel` (N = K E x + b, Liu 2021 eqs. 1-4) use :class:`TriadCalibration`:
-  x = (K E)^-1 (N - b) in the triad's input unit, then to SI.
+  :class:`calib.core.triad.TriadModel` (N = K E x + b, Liu 2021 eqs. 1-4) use :class:`TriadCalibration`: each
+  model's :class:`calib.core.triad.TriadCorrection`, x = (K E)^-1 (N - b) in the triad's input unit, then to SI.
 
 Initial conditions (``init``)
 -----------------------------
@@ -46,9 +46,11 @@ from calib.nav import strapdown
 from calib.io.recording import RecordingError
 from calib.nav.strapdown import NavInit
 from calib.core.rotations import dcm_to_euler
-from calib.core.triad import TriadModel
+from calib.core.triad import TriadCorrection, TriadModel
 
 ARCMIN = math.pi / 180.0 / 60.0
+#: SI unit of the rate each triad's correction gives
+SI_RATE = {"accel": "m s-2", "gyro": "rad s-1"}
 
 
 # ======================================================================================================
@@ -81,28 +83,26 @@ def _input_factor(unit: str, sensor: str) -> float:
 
 @dataclass
 class TriadCalibration:
-    """Calibration from two triad models N = K E x + b (Liu 2021 eqs. 1-4): x = (K E)^-1 (N - b), then SI."""
+    """Calibration from two triad models N = K E x + b (Liu 2021 eqs. 1-4): their corrections
+    (:class:`calib.core.triad.TriadCorrection`) x = s (K E)^-1 (N - b), s the factor of the model's input unit to SI."""
 
     accel: TriadModel  # input unit e.g. 'g', output 'count s-1'
     gyro: TriadModel  # input unit e.g. 'deg h-1', output 'count s-1'
     raw_units: str = "count s-1"
-    _m: dict = field(default_factory=dict, repr=False)
+    corrections: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self):
         for name, tm in (("accel", self.accel), ("gyro", self.gyro)):
             if tm.output_unit != self.raw_units:
                 raise ValueError(f"{name} calibration: output unit {tm.output_unit!r} != {self.raw_units!r}")
-            self._m[name] = (np.linalg.inv(tm.KE).T * _input_factor(tm.input_unit, name), np.asarray(tm.b, float))
-
-    def _apply(self, name, n):
-        minv_t, b = self._m[name]
-        return (np.asarray(n, float) - b) @ minv_t
+            self.corrections[name] = TriadCorrection.from_model(tm, name, output_unit=SI_RATE[name],
+                                                                output_factor=_input_factor(tm.input_unit, name))
 
     def apply_accel(self, raw_rate):
-        return self._apply("accel", raw_rate)
+        return self.corrections["accel"].apply(raw_rate)
 
     def apply_gyro(self, raw_rate):
-        return self._apply("gyro", raw_rate)
+        return self.corrections["gyro"].apply(raw_rate)
 
 
 def check_units(header: recording.Header, calibration) -> None:
