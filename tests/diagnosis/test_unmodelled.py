@@ -18,7 +18,8 @@ from calib.sim import unmodelled
 from calib.studies.diagnosis_proof import FastSession
 
 SHORT = {"site": {"latitude_deg": 30.58, "height_m": 0.0}, "dwell_s": 20.0, "revolutions": 1}
-SEEDS = (101, 102)   # noise seeds of these sessions; no constant of the diagnosis was tuned on them
+SEEDS = (101, 102)   # noise seeds of these sessions; config/seed_roots.yaml counts the tests' seeds as tuning
+#                      seeds, and no proof draws them (tests/diagnosis/test_seed_roots.py)
 
 
 @pytest.fixture(scope="module")
@@ -119,21 +120,28 @@ def test_scale_drift_without_temperature_channel_is_unexplained(fast, noise_reco
     assert "accel_lever_arm" not in {f["effect"] for f in rep["found"]}
 
 
-def test_scale_drift_with_a_monotonic_temperature_discloses_the_rival(fast, noise_record):
-    """With the warm-up temperature channel, a drift in time and a temperature coefficient fit alike: either the
-    data stay unexplained or the temperature term comes with the time drift as a disclosed alternative."""
+@pytest.mark.parametrize("seed", SEEDS)
+def test_scale_drift_with_a_monotonic_temperature_discloses_the_rival(fast, noise_record, seed):
+    """With the warm-up temperature channel, a drift in time and a temperature coefficient fit alike: the 60 ppm
+    drift is seen (never 'adequate'), and either the data stay unexplained or the temperature term comes with the
+    time drift as a disclosed alternative."""
     fs = fast([{"effect": "scale_drift", "sensor": "accel", "axis": "z", "ppm": 60.0}])
-    rep = _diagnose(fs, SEEDS[0], noise_record)
-    if rep["explained"]:
-        assert any("drifting linearly in time" in r["alternative"] for r in rep["form_alternatives"])
-        assert "temperature profile that is not monotonic" in rep["verdict_reason"]
+    rep = _diagnose(fs, seed, noise_record)
+    assert rep["verdict"] != "adequate", rep["verdict_reason"]
+    disclosed = any("drifting linearly in time" in r["alternative"] for r in rep.get("form_alternatives") or [])
+    assert rep["explained"] is False or disclosed, rep["verdict_reason"]
+    assert rep["explained"] is False or "temperature profile that is not monotonic" in rep["verdict_reason"]
 
 
-def test_quartic_nonlinearity_is_unexplained_or_its_rival_disclosed(fast, noise_record):
+@pytest.mark.parametrize("seed", SEEDS)
+def test_quartic_nonlinearity_is_unexplained_or_its_rival_disclosed(fast, noise_record, seed):
+    """150 ug/g^4 on the y accelerometer is seen (never 'adequate'); it is either not explained, or explained by the
+    library's nearest terms with the fourth-order rival disclosed."""
     fs = fast([{"effect": "quartic", "sensor": "accel", "axis": "y", "k4_ug_per_g4": 150.0}])
-    rep = _diagnose(fs, SEEDS[0], noise_record)
-    if rep["explained"]:
-        assert any("fourth-order" in r["alternative"] for r in rep["form_alternatives"]), rep["verdict_reason"]
+    rep = _diagnose(fs, seed, noise_record)
+    assert rep["verdict"] != "adequate", rep["verdict_reason"]
+    disclosed = any("fourth-order" in r["alternative"] for r in rep.get("form_alternatives") or [])
+    assert rep["explained"] is False or disclosed, rep["verdict_reason"]
 
 
 def test_bias_step_is_not_explained(fast, noise_record):
@@ -164,22 +172,6 @@ def test_asymmetry_is_reported_in_the_ieee_definition(tmp_path, noise_record):
         q = p["ieee"]
         assert q["value"] == 2 * p["value"] and q["unit"] == "ppm"
         assert abs(q["value"] - truth[p["axis"]]) <= 2.576 * 2.0 * p["se"]   # inside its 99 % interval
-
-
-def test_the_proof_fails_when_its_seeds_reject_a_claim():
-    """A claimed rate of >= 95 % is rejected when the Clopper-Pearson 99 % interval lies wholly below it (here
-    10/20 named); 19/20 does not reject it; a confounded pair attributed to one effect once rejects 'never'."""
-    from calib.studies.diagnosis_stage import rejected_claims
-    from calib.studies.diagnosis_proof import _binom_ci
-
-    def single(k, n):
-        return {"session": "s", "kind": "single", "rate": k / n, "rate_ci99": _binom_ci(k, n)}
-
-    assert rejected_claims([single(10, 20)]) and not rejected_claims([single(19, 20)])
-    assert not rejected_claims([single(3, 4)])           # four seeds cannot reject 95 % with one miss
-    null = {"session": "n", "kind": "null", "false_discovery_rate": 0.5, "false_discovery_rate_ci99": _binom_ci(50, 100)}
-    assert rejected_claims([null])
-    assert rejected_claims([{"session": "c", "kind": "confounded", "attributed_to_one": 1}])
 
 
 def test_half_sample_stamps_are_not_a_clock_offset(fast, noise_record):

@@ -245,13 +245,14 @@ def _binom_ci(k, n, conf=0.99):
 
 def _proof_worker(args):
     """One session over its seeds (runs in a worker process)."""
-    name, seed_list, out_dir, settings, scale, eff_override, base, injection = args
+    name, seed_list, out_dir, settings, scale, eff_override, base, injection, template_seed = args
     kind = PROOF_SESSIONS[name][0]
     cfg = proof_config(name, eff_override, base)
     spec, drop = cfg.pop("unmodelled", None), cfg.pop("drop_vars", ())
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="calib-proof-") as tmp:
-        fsn = FastSession(cfg, tmp, unmodelled=spec, drop_vars=drop, physical=injection == "physical")
+        fsn = FastSession(cfg, tmp, template_seed=template_seed, unmodelled=spec, drop_vars=drop,
+                          physical=injection == "physical")
         infos = None
         if kind == "single" and scale == 1.0:   # what any unbiased estimator could reach (calib.sim.fisher)
             infos = [sim_fisher.information_for(cfg, eid, params, sim=fsn.sim, clean=fsn.clean_base,
@@ -321,7 +322,7 @@ def _power_worker(args):
     """The detection-power scan of one session: every scale over its seeds (runs in a worker process). The
     template, simulator and clean signal are built once and shared by the scales (:class:`FastSession`
     ``base_of``); each scale's library is built at its own first seed, as in :func:`_proof_worker`."""
-    name, seed_list, settings, scales, effs, base, injection = args
+    name, seed_list, settings, scales, effs, base, injection, template_seed = args
     kind = PROOF_SESSIONS[name][0]
     st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False, "absent_bounds": False,
               "report_detail": False}   # not scored
@@ -331,8 +332,8 @@ def _power_worker(args):
             t0 = time.perf_counter()
             cfg = proof_config(name, eff, base)
             spec, drop = cfg.pop("unmodelled", None), cfg.pop("drop_vars", ())
-            fsn = FastSession(cfg, tmp if prev is None else None, unmodelled=spec, drop_vars=drop,
-                              physical=injection == "physical", base_of=prev)
+            fsn = FastSession(cfg, tmp if prev is None else None, template_seed=template_seed, unmodelled=spec,
+                              drop_vars=drop, physical=injection == "physical", base_of=prev)
             same = prev is not None and fsn.template is prev.template      # the template (geometry) is shared
             if prev is None or not prev.reusable_for(fsn):
                 prev = fsn
@@ -369,6 +370,7 @@ def _summarise(res) -> dict:
     if cov:
         kc = sum(c["covered"] for c in cov)
         out["coverage"] = kc / len(cov)
+        out["coverage_covered"] = int(kc)
         out["coverage_n"] = len(cov)
         out["coverage_ci99"] = _binom_ci(kc, len(cov))
         by = {}
@@ -383,6 +385,7 @@ def _summarise(res) -> dict:
             pp = {"truth": v[0]["truth"], "mean_estimate": float(vals.mean()),
                   "mean_se": float(np.mean(ses)) if ses else None,
                   "empirical_std": float(vals.std(ddof=1)) if len(vals) > 1 else None,
+                  "rms_error": float(np.sqrt(np.mean((vals - v[0]["truth"]) ** 2))),
                   "coverage": float(np.mean([c["covered"] for c in v])), "n": len(v)}
             if nm in fb:   # the generative model's Fisher bound: None when the session does not determine it
                 b = fb[nm]
@@ -390,6 +393,7 @@ def _summarise(res) -> dict:
                 pp["fisher_bound_all_free"] = fb_all.get(nm)
                 pp["se_over_bound"] = None if (b is None or pp["mean_se"] is None) else pp["mean_se"] / b
                 pp["std_over_bound"] = None if (b is None or pp["empirical_std"] is None) else pp["empirical_std"] / b
+                pp["rms_error_over_bound"] = None if b is None else pp["rms_error"] / b
             out["per_parameter"][nm] = pp
         ratios = [p["se_over_bound"] for p in out["per_parameter"].values() if p.get("se_over_bound") is not None]
         if ratios:
@@ -400,6 +404,8 @@ def _summarise(res) -> dict:
     found = [r for r in rows if r["found"]]
     pa = [r["chi2_after_p"] for r in found if r["chi2_after_p"] is not None]
     out["chi2_after_p_ge_0.01"] = float(np.mean(np.array(pa) >= 0.01)) if pa else None
+    out["chi2_after_p_n"] = len(pa)
+    out["chi2_after_p_lt_0.01"] = int(np.sum(np.array(pa) < 0.01)) if pa else 0
     out["chi2_before_median"] = float(np.median([r["chi2_before"] for r in rows if r["chi2_before"] is not None]))
     out["chi2_after_median"] = float(np.median([r["chi2_after"] for r in rows if r["chi2_after"] is not None]))
     names = {}
@@ -501,11 +507,22 @@ def _one_thread_blas():
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
+def proof_streams(root: int, n_seeds: int, power_seeds: int = 0) -> dict:
+    """The simulator seeds the proof with root seed ``root`` draws, each a named child stream of the root
+    (:mod:`calib.core.seeds`): ``template`` (every session's end-to-end recording and its per-session out-of-library
+    draws), ``noise`` (the ``n_seeds`` noise seeds of every session, ``(noise, k)``) and ``power`` (the
+    ``power_seeds`` seeds of every magnitude of the detection-power scan, ``(power, k)``)."""
+    return {"template": seeds.child_seed(root, "template"),
+            "noise": [seeds.child_seed(root, "noise", k) for k in range(n_seeds)],
+            "power": [seeds.child_seed(root, "power", k) for k in range(power_seeds)]}
+
+
 def _session_job(name, n_seeds, seed, out_dir, settings, base, injection) -> tuple:
-    """The arguments of :func:`_proof_worker` for session ``name``: its ``n_seeds`` noise seeds
-    (``child_seed(seed, "noise", k)``), the proof magnitude (scale 1)."""
-    noise_seeds = [seeds.child_seed(seed, "noise", k) for k in range(n_seeds)]
-    return (name, noise_seeds, None if out_dir is None else str(out_dir), settings, 1.0, None, base, injection)
+    """The arguments of :func:`_proof_worker` for session ``name``: its ``n_seeds`` noise seeds and its template
+    (:func:`proof_streams` of root ``seed``), the proof magnitude (scale 1)."""
+    st = proof_streams(seed, n_seeds)
+    return (name, st["noise"], None if out_dir is None else str(out_dir), settings, 1.0, None, base, injection,
+            st["template"])
 
 
 def _power_job(r, power_scales, power_seeds, seed, settings, base, injection):
@@ -516,8 +533,9 @@ def _power_job(r, power_scales, power_seeds, seed, settings, base, injection):
         return None
     scales = power_scales if not isinstance(power_scales, str) else _power_scales(r)
     r["power_scales"] = list(scales)
-    return (r["name"], [seeds.child_seed(seed, "power", k) for k in range(power_seeds)], settings,
-            [float(sc) for sc in scales], [_scale_effects(eff, sc) for sc in scales], base, injection)
+    st = proof_streams(seed, 0, power_seeds)
+    return (r["name"], st["power"], settings, [float(sc) for sc in scales], [_scale_effects(eff, sc) for sc in scales],
+            base, injection, st["template"])
 
 
 def proof_session(name: str, out_dir, n_seeds: int, seed: int, settings=None, base: dict | None = None,
@@ -652,30 +670,170 @@ def _power_table(results, names):
     return tab
 
 
-def _acceptance(summary):
-    acc = {}
+# =====================================================================================================
+# the gate: every claim of the proof tested by its seeds
+# =====================================================================================================
+#: the confidence of the intervals (Clopper-Pearson) and of the chi-square quantile the seeds test the claims at
+GATE_CONFIDENCE = 0.99
+#: a rate claimed: the injected effect named, named and explained, a null called adequate, an out-of-library case
+#: not explained, the selected model passing its chi-square test at p >= 0.01
+CLAIMED_RATE = 0.95
+#: the false-discovery rate claimed on the sessions with nothing hidden
+CLAIMED_FALSE_DISCOVERY = 0.05
+#: the coverage claimed for the reported 95 % intervals
+CLAIMED_COVERAGE = 0.95
+#: the fewest intervals a coverage test takes: a session with fewer is pooled with the other sessions that have
+#: fewer; a pool still below it fails the gate (the proof draws too few intervals to test the claim)
+MIN_COVERAGE_N = 50
+#: root-mean-square error / Fisher bound allowed for a parameter listed as efficient (the held-out proof's standard
+#: errors are 1.05-2.6 bounds for them: docs/diagnosis.md, "Fisher bounds")
+EFFICIENCY_LIMIT = 3.0
+_RAMPS = ("the sample stream holds information in the spin-up and spin-down ramps that the diagnosis's static and "
+          "whole-revolution window means do not use (200-3400 bounds on the held-out proof; docs/diagnosis.md, "
+          "'Fisher bounds')")
+#: the parameters whose error is known to exceed :data:`EFFICIENCY_LIMIT` Fisher bounds, and why: listed in
+#: proof.md with their ratio, not gated on efficiency (every other parameter with a bound is)
+KNOWN_INEFFICIENT = {"offset_s": "the clock offset: " + _RAMPS,
+                     **{f"lever_arms_m[{a},{b}]": "an off-diagonal lever arm: " + _RAMPS
+                        for a in "xyz" for b in "xyz" if a != b}}
+
+
+def gate(summary) -> list[dict]:
+    """Every claim of the proof tested by its seeds (the rule fails when one is rejected: :func:`gate_failures`).
+
+    ``summary``: the sessions' summaries (``proof.json`` ``sessions``). Each check is ``{"claim", "scope",
+    "passed", "detail"}``, scope a session or a pool of sessions of one kind. A rate claimed >= 95 % (named, named
+    and explained, called adequate, not explained out of the library, chi-square p >= 0.01 after the found terms)
+    is rejected when its 99 % Clopper-Pearson interval lies wholly below 0.95, per session and pooled over the
+    sessions of its kind (a few seeds per session cannot reject a claim that the pool can); the false-discovery rate
+    claimed <= 5 % when its interval lies wholly above; coverage of the 95 % intervals when 0.95 is outside the
+    99 % interval of the covered fraction, per session with >= :data:`MIN_COVERAGE_N` intervals and pooled over
+    the others -- never skipped: a pool with fewer intervals fails; a standard error below :data:`FISHER_SLACK` x
+    its Fisher bound; a parameter reported that the session does not determine; a confounded pair attributed to one
+    effect even once; the efficient parameters' root-mean-square error above :data:`EFFICIENCY_LIMIT` Fisher bounds
+    (chi-square test over every estimate of the session; :data:`KNOWN_INEFFICIENT` named with their reason instead).
+    """
+    checks = []
+
+    def add(claim, scope, passed, detail):
+        checks.append({"claim": claim, "scope": scope, "passed": bool(passed), "detail": detail})
+
+    def at_least(claim, scope, k, n, target=CLAIMED_RATE):
+        if not n:
+            return add(claim, scope, False, f"no seed to test it (claimed >= {target:g})")
+        lo, hi = _binom_ci(k, n, GATE_CONFIDENCE)
+        add(claim, scope, hi >= target, f"{k}/{n}, 99 % interval [{lo:.3f}, {hi:.3f}], claimed >= {target:g}")
+
+    def at_most(claim, scope, k, n, target):
+        if not n:
+            return add(claim, scope, False, f"no seed to test it (claimed <= {target:g})")
+        lo, hi = _binom_ci(k, n, GATE_CONFIDENCE)
+        add(claim, scope, lo <= target, f"{k}/{n}, 99 % interval [{lo:.3f}, {hi:.3f}], claimed <= {target:g}")
+
+    def coverage(scope, k, n):
+        if n < MIN_COVERAGE_N:
+            return add("coverage_consistent_with_95pct", scope, False,
+                       f"{k}/{n} intervals cover the truth: fewer than {MIN_COVERAGE_N} intervals cannot test the "
+                       "claimed 95 % (raise diagnosis.proof.n_seeds)")
+        lo, hi = _binom_ci(k, n, GATE_CONFIDENCE)
+        add("coverage_consistent_with_95pct", scope, lo <= CLAIMED_COVERAGE <= hi,
+            f"{k}/{n} = {k / n:.3f}, 99 % interval [{lo:.3f}, {hi:.3f}], claimed {CLAIMED_COVERAGE:g}")
+
+    fit_ok = lambda s: (s.get("chi2_after_p_n", 0) - s.get("chi2_after_p_lt_0.01", 0), s.get("chi2_after_p_n", 0))
+    by_kind = {}
     for s in summary:
-        if s["kind"] == "single":
-            cov_ok = None
-            if "coverage_ci99" in s:
-                lo, hi = s["coverage_ci99"]
-                cov_ok = lo <= 0.95 <= hi
-            acc[s["session"]] = {"named_correctly_ge_95pct": s["rate"] >= 0.95,
-                                 "named_and_explained_ge_95pct": s.get("verdict_right_rate", 0.0) >= 0.95,
-                                 "coverage_consistent_with_95pct": cov_ok,
-                                 "chi2_after_p_ge_0.01_rate": s["chi2_after_p_ge_0.01"],
-                                 # no standard error below the generative model's Fisher bound (10 %: Whittle's
-                                 # approximation), and nothing reported that the session does not determine
-                                 "se_not_below_fisher_bound": (None if "se_over_fisher_bound" not in s
-                                                               else s["se_over_fisher_bound"][0] >= FISHER_SLACK),
-                                 "only_determined_parameters_reported": not s.get("reported_but_not_determined")}
-        elif s["kind"] == "unmodelled":
-            acc[s["session"]] = {"never_explained_ge_95pct": s["rate"] >= 0.95}
-        elif s["kind"] == "null":
-            acc[s["session"]] = {"false_discoveries_le_5pct": s["false_discovery_rate"] <= 0.05,
-                                 "called_adequate_ge_95pct": s.get("verdict_right_rate", 0.0) >= 0.95}
+        by_kind.setdefault(s["kind"], []).append(s)
+        name, kind, n = s["session"], s["kind"], s["n_seeds"]
+        if kind == "single":
+            at_least("named_correctly_ge_95pct", name, s["correct"], n)
+            at_least("named_and_explained_ge_95pct", name, s.get("verdict_right", 0), n)
+            at_least("chi2_after_p_ge_0.01_ge_95pct", name, *fit_ok(s))
+            pp = s.get("per_parameter") or {}
+            low = {nm: p["se_over_bound"] for nm, p in pp.items()
+                   if p.get("se_over_bound") is not None and p["se_over_bound"] < FISHER_SLACK}
+            add("se_not_below_fisher_bound", name, not low,
+                ("standard error / Fisher bound below " + f"{FISHER_SLACK:g}: "
+                 + ", ".join(f"{k} {v:.3g}" for k, v in low.items())) if low else
+                f"every standard error >= {FISHER_SLACK:g} x its Fisher bound "
+                f"({sum(p.get('se_over_bound') is not None for p in pp.values())} parameters)")
+            bad = s.get("reported_but_not_determined") or []
+            add("only_determined_parameters_reported", name, not bad,
+                f"reported but not determined by the session: {', '.join(bad)}" if bad else "none reported undetermined")
+            eff = [(p["n"], p["rms_error_over_bound"]) for nm, p in pp.items()
+                   if p.get("rms_error_over_bound") is not None and nm not in KNOWN_INEFFICIENT]
+            if eff:
+                n_est = sum(m for m, _ in eff)
+                ss = sum(m * r * r for m, r in eff)
+                limit = EFFICIENCY_LIMIT ** 2 * stats.chi2.ppf(GATE_CONFIDENCE, n_est)
+                add(f"efficient_within_{EFFICIENCY_LIMIT:g}_fisher_bounds", name, ss <= limit,
+                    f"rms error / Fisher bound {math.sqrt(ss / n_est):.3g} over {n_est} estimates of {len(eff)} "
+                    f"parameters; rejected above {math.sqrt(limit / n_est):.3g} (limit {EFFICIENCY_LIMIT:g}, 1 % test)")
+        elif kind == "null":
+            at_most("false_discoveries_le_5pct", name, s["false_discovery_sessions"], n, CLAIMED_FALSE_DISCOVERY)
+            at_least("called_adequate_ge_95pct", name, s.get("verdict_right", 0), n)
+        elif kind == "unmodelled":
+            at_least("never_explained_ge_95pct", name, s["correct"], n)
         else:
-            acc[s["session"]] = {"never_attributed_to_one_effect": s.get("attributed_to_one", 0) == 0}
+            a = s.get("attributed_to_one", 0)
+            add("never_attributed_to_one_effect", name, a == 0, f"attributed to one effect in {a}/{n} seeds")
+    tot = lambda ss, f: tuple(map(sum, zip(*[f(s) for s in ss])))
+    singles, nulls = by_kind.get("single", []), by_kind.get("null", [])
+    pool = "pooled over the {} {} sessions"
+    if singles:
+        sc = pool.format(len(singles), "single-effect")
+        at_least("named_correctly_ge_95pct", sc, *tot(singles, lambda s: (s["correct"], s["n_seeds"])))
+        at_least("named_and_explained_ge_95pct", sc, *tot(singles, lambda s: (s.get("verdict_right", 0), s["n_seeds"])))
+        at_least("chi2_after_p_ge_0.01_ge_95pct", sc, *tot(singles, fit_ok))
+        small = []
+        for s in singles:
+            if s.get("coverage_n", 0) >= MIN_COVERAGE_N:
+                coverage(s["session"], s["coverage_covered"], s["coverage_n"])
+            else:
+                small.append(s)
+        if small:
+            coverage(f"pooled over {', '.join(s['session'] for s in small)}",
+                     sum(s.get("coverage_covered", 0) for s in small), sum(s.get("coverage_n", 0) for s in small))
+    if nulls:
+        sc = pool.format(len(nulls), "null")
+        at_most("false_discoveries_le_5pct", sc,
+                *tot(nulls, lambda s: (s["false_discovery_sessions"], s["n_seeds"])), CLAIMED_FALSE_DISCOVERY)
+        at_least("called_adequate_ge_95pct", sc, *tot(nulls, lambda s: (s.get("verdict_right", 0), s["n_seeds"])))
+    if by_kind.get("unmodelled"):
+        um = by_kind["unmodelled"]
+        at_least("never_explained_ge_95pct", pool.format(len(um), "out-of-library"),
+                 *tot(um, lambda s: (s["correct"], s["n_seeds"])))
+    return checks
+
+
+def gate_failures(summary) -> list[str]:
+    """The checks of :func:`gate` that fail, one line each (empty: every claim stands)."""
+    return [f"{c['scope']}: {c['claim']} rejected ({c['detail']})" for c in gate(summary) if not c["passed"]]
+
+
+def inefficient_listed(summary) -> list[str]:
+    """The :data:`KNOWN_INEFFICIENT` parameters the proof estimated: ratio and reason, one line each."""
+    out = []
+    for s in summary:
+        for nm, p in (s.get("per_parameter") or {}).items():
+            if nm in KNOWN_INEFFICIENT and p.get("rms_error_over_bound") is not None:
+                out.append(f"{s['session']} {nm}: rms error / Fisher bound {p['rms_error_over_bound']:.3g} "
+                           f"(n = {p['n']}) -- {KNOWN_INEFFICIENT[nm]}")
+    return out
+
+
+def _acceptance(summary):
+    """The gate's outcome per session (its own checks, and the pooled coverage test it entered), and per pool."""
+    acc = {s["session"]: {} for s in summary}
+    for c in gate(summary):
+        if c["scope"] in acc:
+            acc[c["scope"]][c["claim"]] = c["passed"]
+        elif c["scope"].startswith("pooled over ") and c["claim"] == "coverage_consistent_with_95pct":
+            for nm in c["scope"][len("pooled over "):].split(", "):
+                if nm in acc:
+                    acc[nm][c["claim"]] = c["passed"]
+            acc.setdefault("pooled", {})[c["scope"] + ": " + c["claim"]] = c["passed"]
+        else:
+            acc.setdefault("pooled", {})[c["scope"] + ": " + c["claim"]] = c["passed"]
     return acc
 
 
@@ -696,8 +854,8 @@ def _proof_csv(summary) -> str:
 
 def _proof_md(out) -> str:
     L = ["# Mismatch diagnosis: concealed-effect proof", "",
-         f"{out['n_seeds']} noise seeds per session (seeds {out['first_seed']}.."
-         f"{out['first_seed'] + out['n_seeds'] - 1}); {out['method']}.", "",
+         f"{out['n_seeds']} noise seeds per session (root seed {out['first_seed']}: the child streams (noise, k), "
+         f"k < {out['n_seeds']}, and (template) for each session's end-to-end recording); {out['method']}.", "",
          "| session | kind | correct | rate (99 % CI) | right verdict | verdicts | false disc. | coverage (n) | "
          "chi2 before / after (median) | after p>=0.01 | found |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in out["sessions"]:
@@ -743,10 +901,17 @@ def _proof_md(out) -> str:
                 L.append(f"| {s['session']} | not estimated by the diagnosis: {', '.join(s['not_estimated'])} "
                          "| | | | | | |")
         L.append("")
-    L.append("## Acceptance")
-    L.append("")
-    for k, v in out["acceptance"].items():
-        L.append(f"- {k}: " + ", ".join(f"{a} = {b}" for a, b in v.items()))
+    L += ["## Gate", "",
+          "Every claim tested by the seeds at the 1 % level (calib.studies.diagnosis_proof.gate); a rejected claim "
+          "fails the rule. Rates: 99 % Clopper-Pearson intervals, per session and pooled over the sessions of a "
+          "kind; coverage per session with >= " f"{MIN_COVERAGE_N} intervals, the others pooled; efficiency: "
+          f"root-mean-square error within {EFFICIENCY_LIMIT:g} Fisher bounds (chi-square test).", ""]
+    for c in gate(out["sessions"]):
+        L.append(f"- {'held' if c['passed'] else 'REJECTED'}: {c['scope']}: {c['claim']} -- {c['detail']}")
+    ineff = inefficient_listed(out["sessions"])
+    if ineff:
+        L += ["", "Known inefficient, not gated on efficiency (their standard errors are gated against the bound "
+              "like every other):", ""] + [f"- {x}" for x in ineff]
     return "\n".join(L) + "\n"
 
 
