@@ -109,21 +109,29 @@ def _covered(r) -> tuple[int, int]:
     return round(r["coverage"] * r["coverage_n"]), r["coverage_n"]
 
 
-def pooled_coverage_failure(results) -> str | None:
+def pooled_coverage(results) -> dict | None:
     """The coverage test of the library terms with fewer than :data:`MIN_COVERAGE_N` intervals on their recording
-    (named exactly in few injections, or few injections), pooled over the usable recordings: a message when it
-    fails or the pool is still too small, None when it holds or no term needs it."""
+    (named exactly in few injections, or few injections), pooled over the usable recordings: ``{"where", "covered",
+    "n", "passed"}`` (``passed`` False also when the pool holds fewer than MIN_COVERAGE_N intervals), or None when
+    no term needs it."""
     small = [(rec["recording"], r) for rec in results if rec.get("usable") and rec.get("proof")
              for r in rec["proof"]["in_library"] if 0 < r.get("coverage_n", 0) < MIN_COVERAGE_N]
     if not small:
         return None
     k, n = map(sum, zip(*[_covered(r) for _, r in small]))
-    where = f"pooled over {len(small)} library term(s) of {', '.join(dict.fromkeys(nm for nm, _ in small))}"
-    if n < MIN_COVERAGE_N:
-        return (f"{where}: coverage_consistent_with_95pct untestable ({n} intervals, fewer than {MIN_COVERAGE_N}: "
-                "raise diagnosis.real_proof.n_inject)")
-    return None if coverage_consistent(k, n) else (f"{where}: coverage_consistent_with_95pct ({k}/{n} intervals "
-                                                   "hold the injected value)")
+    return {"where": f"pooled over {len(small)} library term(s) of {', '.join(dict.fromkeys(nm for nm, _ in small))}",
+            "covered": k, "n": n, "passed": n >= MIN_COVERAGE_N and coverage_consistent(k, n)}
+
+
+def pooled_coverage_failure(results) -> str | None:
+    """A message when the pooled coverage test (:func:`pooled_coverage`) fails or cannot be made, else None."""
+    pc = pooled_coverage(results)
+    if pc is None or pc["passed"]:
+        return None
+    if pc["n"] < MIN_COVERAGE_N:
+        return (f"{pc['where']}: coverage_consistent_with_95pct untestable ({pc['n']} intervals, fewer than "
+                f"{MIN_COVERAGE_N}: raise diagnosis.real_proof.n_inject)")
+    return f"{pc['where']}: coverage_consistent_with_95pct ({pc['covered']}/{pc['n']} intervals hold the injected value)"
 
 
 def acceptance(res: dict) -> dict:
@@ -330,4 +338,9 @@ def real_proof_md(out) -> str:
             if p["degenerate_accepted"]:
                 L.append(f"Degenerate explanations accepted: {p['degenerate_accepted'][:10]}")
             L.append("")
+    pc = pooled_coverage(out["recordings"])
+    if pc is not None:   # the terms with too few intervals on their own recording (acceptance: None there)
+        L.append(f"Coverage {pc['where']}: {pc['covered']}/{pc['n']} intervals hold the injected value; consistent "
+                 f"with 95 % (>= {MIN_COVERAGE_N} intervals, 99 % Clopper-Pearson) = {pc['passed']}")
+        L.append("")
     return "\n".join(L) + "\n"
