@@ -86,8 +86,11 @@ def allan(panels: list):
                             label=f"{int(round(100 * A['confidence']))} % interval" if a == 0 else "_nolegend_")
         ax.set_xlabel("tau [s]")
         ax.set_ylabel(f"Allan deviation [{A['unit']}]")
-        ax.set_title(f"{s} (pooled static segments)")
+        # at the top edge, where matplotlib would place it (no tick labels above the panel), given rather than
+        # found by measuring every y tick label of the panel once more before drawing
+        ax.set_title(f"{s} (pooled static segments)", y=1.0)
         ax.legend()
+        style.in_view_ticks(ax)
     # inches: log tick labels and y label; title; tick labels and x label; each panel's own y label between panels
     style.fixed_margins(fig, left=0.85, right=0.15, top=0.35, bottom=0.55, wspace=0.95)
     return fig

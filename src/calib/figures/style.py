@@ -14,6 +14,8 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib import ticker  # noqa: E402
 
 from calib.figures.output import CHECK_ENV, FigureCheckError, check_mode, write_rendered  # noqa: E402,F401
 
@@ -128,6 +130,50 @@ def fixed_margins(fig, left: float, right: float, top: float, bottom: float, wsp
     ah = (h - top - bottom - hspace * (nrows - 1)) / nrows
     fig.subplots_adjust(left=left / w, right=1.0 - right / w, top=1.0 - top / h, bottom=bottom / h,
                         wspace=wspace / aw if ncols > 1 else 0.2, hspace=hspace / ah if nrows > 1 else 0.2)
+
+
+class InViewLocator(ticker.Locator):
+    """The locations of ``inner`` that the axis draws: those inside the view interval, with the tolerance
+    matplotlib's ``Axis`` uses to choose the ticks it draws. Matplotlib makes a tick object (two marks, a grid line,
+    two labels) for every location a locator returns, drawn or not, and a log locator returns whole decades beyond
+    each end of the view; on the Allan deviation figure those were a quarter of its ticks. Autoscaling
+    (``nonsingular``, ``view_limits``) is the inner locator's, so the axis limits do not change."""
+
+    def __init__(self, inner: ticker.Locator):
+        self.inner = inner
+
+    def set_axis(self, axis):
+        super().set_axis(axis)
+        self.inner.set_axis(axis)
+
+    def __call__(self):
+        return self._in_view(np.asarray(self.inner(), dtype=float))
+
+    def tick_values(self, vmin, vmax):
+        return self.inner.tick_values(vmin, vmax)
+
+    def nonsingular(self, v0, v1):
+        return self.inner.nonsingular(v0, v1)
+
+    def view_limits(self, vmin, vmax):
+        return self.inner.view_limits(vmin, vmax)
+
+    def _in_view(self, locs):
+        if self.axis is None or not locs.size:
+            return locs
+        transform = self.axis.get_transform()
+        lo, hi = sorted(transform.transform(self.axis.get_view_interval()))
+        tol = (hi - lo) * 1e-10                    # matplotlib.transforms._interval_contains_close
+        at = transform.transform(locs)
+        return locs[(at >= lo - tol) & (at <= hi + tol)]
+
+
+def in_view_ticks(ax) -> None:
+    """Major and minor ticks of both axes of ``ax`` only where they are drawn (:class:`InViewLocator`); call it
+    after the axis scales are set (setting a scale replaces the locators)."""
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(InViewLocator(axis.get_major_locator()))
+        axis.set_minor_locator(InViewLocator(axis.get_minor_locator()))
 
 
 def plain_log_ticks(ax, which: str = "x") -> None:
