@@ -12,6 +12,7 @@ import xarray as xr
 import yaml
 
 from calib.core import seeds
+from calib.core.errors import ResultCheckError
 from calib.io import recording
 from calib.sim.calibration_session import build_calibration_simulator, simulate_calibration_session
 from calib.studies import diagnosis_stage as diagnosis_study
@@ -195,10 +196,16 @@ def test_proof_stage_products(tmp_path):
     outs = {}
     for w in (2, 1):
         d = tmp_path / f"workers{w}"
-        outs[w] = diagnosis_study.proof_stage(d, n_seeds=2, first_seed=7, sessions=["null_a", "time_offset"],
-                                              power_seeds=2, workers=w, base=base, site=SHORT["site"],
-                                              log=lambda *a: None, metrics_path=d / "proof.metrics.json",
-                                              enforce=False)
+        run = lambda enforce: diagnosis_study.proof_stage(   # noqa: E731
+            d, n_seeds=2, first_seed=7, sessions=["null_a", "time_offset"], power_seeds=2, workers=w, base=base,
+            site=SHORT["site"], log=lambda *a: None, metrics_path=d / "proof.metrics.json", enforce=enforce)
+        if w == 2:
+            outs[w] = run(False)
+        else:   # enforced, a rejected claim fails the stage with a short message, its files written (no noise
+            # record here: the nulls are 'inconclusive', not 'adequate'; 2 intervals cannot test coverage)
+            with pytest.raises(ResultCheckError, match=r"the proof's seeds reject \d+ of its claims: null_a: "
+                               r"called_adequate_ge_95pct rejected .* \(and \d+ more: proof.md, section Gate\)"):
+                run(True)
     for name in ("proof.json", "proof.csv", "proof.md", "power.csv", "proof_rows.json", "proof.metrics.json"):
         assert (tmp_path / "workers2" / name).read_bytes() == (tmp_path / "workers1" / name).read_bytes(), name
     with xr.open_dataset(tmp_path / "workers2" / "proof.nc") as a, xr.open_dataset(tmp_path / "workers1" / "proof.nc") as b:
