@@ -42,7 +42,7 @@ def _static_check(acc_si, fs) -> str | None:
 
 
 def cmd_noise(a):
-    from calib.figures import style
+    from calib.figures import allan_plots, style
     from calib.io import export_formats, recording
     from calib.io.atomic import output_set, write_json, write_text
     from calib.signal import ieee952
@@ -118,9 +118,10 @@ def cmd_noise(a):
     with output_set():   # the report, its figures and Kalibr's file: all of them or none
         write_json(rep, out / "noise.json")
         write_text(out / "noise.md", ieee952.report_markdown(results, src, kal, notes))
+        panels = ieee952.figure_data(results)
         for suffix in (".svg", ".png"):
-            style.save(ieee952.plot(results, f"Allan deviation of {src} ({h.n_samples / fs / 3600.0:.3g} h at "
-                                             f"{fs:.6g} Hz)"), out / f"allan{suffix}")
+            style.save(allan_plots.noise_terms(panels, f"Allan deviation of {src} ({h.n_samples / fs / 3600.0:.3g} "
+                                                       f"h at {fs:.6g} Hz)"), out / f"allan{suffix}")
         if a.kalibr:
             write_text(a.kalibr, export_formats.kalibr_yaml(kal, rostopic, fs, src))
     lines = {"out": str(out)}

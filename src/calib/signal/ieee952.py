@@ -4,7 +4,8 @@ What allan_variance_ros / imu_utils do, with intervals that mean what they say. 
 :mod:`calib.signal.allan` (overlapping estimator, octave-spaced taus, chi-square intervals); the term model and
 its weighted non-negative least-squares fit are :meth:`calib.signal.allan.AllanResult.noise_model`. This module
 adds which terms the record supports, intervals for every term, the confidence band of the measured deviation
-with the degrees of freedom of the noise type that dominates at each tau, and the figure and report.
+with the degrees of freedom of the noise type that dominates at each tau, the report and the data of its figure
+(drawn by :mod:`calib.figures.allan_plots`).
 
 Terms (IEEE Std 952-1997 Annex C; per sensor axis, rate unit ``u`` = rad s-1 for a gyro, m s-2 for an
 accelerometer, whatever the record's rate unit otherwise)::
@@ -481,7 +482,7 @@ def kalibr_parameters(gyro: NoiseTerms, accel: NoiseTerms) -> dict:
     return out
 
 
-# --------------------------------------------------------------------------- report and figure
+# --------------------------------------------------------------------------- report and figure data
 
 
 def _fmt(v) -> str:
@@ -547,63 +548,20 @@ def report_markdown(results: dict, source: str, kalibr: dict | None = None, note
     return "\n".join(lines).rstrip() + "\n"
 
 
-def plot(results: dict, title: str = ""):
-    """Log-log figure: one row per sensor of ``results`` {sensor: NoiseTerms}, one column per axis; measured ADEV
-    with its confidence band, the fitted model and each fitted term's line. Returns the matplotlib figure (save it
-    with :func:`calib.figures.style.save`)."""
-    import matplotlib.pyplot as plt
-
-    from calib.figures import style  # noqa: F401 - the project's deterministic rc settings
-
-    sensors = list(results)
-    naxes = max(len(nt.axes) for nt in results.values())
-    fig, axs = plt.subplots(len(sensors), naxes, figsize=(3.3 * naxes, 2.9 * len(sensors)), squeeze=False,
-                            sharex=True)
-    styles = {"Q": ("tab:purple", (0, (1, 1)), "Q (slope -1)"), "N": ("tab:blue", "--", "N (slope -1/2)"),
-              "B": ("tab:green", "-.", "B (flat)"), "K": ("tab:red", (0, (5, 1, 1, 1)), "K (slope +1/2)")}
-    for row, sensor in enumerate(sensors):
-        nt = results[sensor]
+def figure_data(results: dict) -> list:
+    """What :func:`calib.figures.allan_plots.noise_terms` draws, as plain data: one dict per sensor of ``results``
+    {sensor: NoiseTerms}, with the measured ADEV (``tau``, ``adev``) and its confidence band (``band_lo``,
+    ``band_hi``), the fitted model (``model``) and each term's line (``terms[t]["adev"]``, drawn where
+    ``terms[t]["drawn"]``: the fit holds the term on that axis) on 200 log-spaced taus (``tau_model``), and each
+    term's value, interval and whether the record resolves it."""
+    out = []
+    for sensor, nt in results.items():
         r = nt.allan
         tt = np.geomspace(r.tau[0], r.tau[-1], 200)
-        for col in range(naxes):
-            ax = axs[row, col]
-            if col >= len(nt.axes):
-                ax.set_visible(False)
-                continue
-            ax.fill_between(r.tau, nt.band_lo[:, col], nt.band_hi[:, col], color="0.8", lw=0,
-                            label=f"{100 * nt.confidence:g} % band")
-            ax.loglog(r.tau, r.adev[:, col], "o-", color="k", ms=3, lw=1.0, label="measured ADEV")
-            ax.loglog(tt, nt.model_adev(tt)[:, col], "-", color="tab:orange", lw=1.2, label="fitted model")
-            for t in TERMS:
-                if (nt.fitted or nt.values)[t][col] > 0:
-                    c, ls, lab = styles[t]
-                    ax.loglog(tt, nt.term_adev(t, tt)[:, col], color=c, ls=ls, lw=1.0, label=lab)
-            lo_y = max(float(np.min(nt.band_lo[:, col])) / 3.0, 1e-300)
-            # headroom above the curve for the values; the long-tau band may run off the top
-            ax.set_ylim(lo_y, float(np.max(r.adev[:, col])) * 40.0)
-
-            def label(t):
-                v, hi = nt.values[t][col], nt.hi[t][col]
-                if nt.resolved[t][col]:
-                    return f"{t} = {v:.4g} [{nt.lo[t][col]:.4g}, {hi:.4g}]"
-                return f"{t} < {hi:.3g}" + (f" (fit {v:.3g})" if v > 0 else "")
-
-            txt = "\n".join(label(t) for t in TERMS)
-            ax.text(0.97, 0.97, txt, transform=ax.transAxes, fontsize=6.5, va="top", ha="right",
-                    bbox={"fc": "white", "ec": "0.7", "alpha": 0.9, "lw": 0.5})
-            ax.set_title(f"{sensor} {nt.axes[col]}", fontsize=9)
-            ax.set_ylabel(f"Allan deviation [{nt.unit}]")
-            if row == len(sensors) - 1:
-                ax.set_xlabel("averaging time \u03c4 [s]")
-    handles, labels = {}, {}
-    for ax in axs.ravel():
-        for h, lab in zip(*ax.get_legend_handles_labels()):
-            handles.setdefault(lab, h)
-    fig.legend(list(handles.values()), list(handles.keys()), loc="lower center", ncol=min(7, len(handles)),
-               fontsize=7, frameon=False)
-    if title:
-        fig.suptitle(title, fontsize=9)
-    h = fig.get_figheight()   # fixed margins (inches): tight_layout costs seconds on log axes
-    fig.subplots_adjust(left=0.75 / fig.get_figwidth(), right=0.99, bottom=0.85 / h, top=1 - 0.6 / h,
-                        wspace=0.32, hspace=0.28 * 2.9 / max(h / len(sensors), 1e-9))
-    return fig
+        fit = nt.fitted or nt.values
+        out.append({"sensor": sensor, "axes": tuple(nt.axes), "unit": nt.unit, "confidence": nt.confidence,
+                    "tau": r.tau, "adev": r.adev, "band_lo": nt.band_lo, "band_hi": nt.band_hi, "tau_model": tt,
+                    "model": nt.model_adev(tt),
+                    "terms": {t: {"adev": nt.term_adev(t, tt), "drawn": np.asarray(fit[t]) > 0, "value": nt.values[t],
+                                  "lo": nt.lo[t], "hi": nt.hi[t], "resolved": nt.resolved[t]} for t in TERMS}})
+    return out
