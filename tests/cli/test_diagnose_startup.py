@@ -41,12 +41,12 @@ def test_help_loads_no_numerical_library():
 
 
 def test_a_figure_is_drawn_with_the_project_style(tmp_path):
-    """calib.signal.detect no longer loads matplotlib on import; its figure still gets the project's rc settings
-    (calib.figures.style) before anything is drawn, and the same file twice."""
+    """calib.signal.detect loads no matplotlib on import; its figure (calib.figures.segment_plots) gets the
+    project's rc settings (calib.figures.style) before anything is drawn, and the same file twice."""
     code = (
         "import sys, numpy as np\n"
         "from calib.signal import detect\n"
-        "assert 'matplotlib' not in sys.modules\n"
+        "assert 'matplotlib' not in sys.modules and 'calib.figures.style' not in sys.modules\n"
         "rng = np.random.default_rng(0)\n"
         "acc = rng.normal(0, 1e-3, (3000, 3)); acc[1000:1500] += rng.normal(0, 1, (500, 3))\n"
         "gyr = rng.normal(0, 1e-3, (3000, 3)); gyr[1000:1500] += rng.normal(0, 1, (500, 3))\n"
@@ -60,7 +60,9 @@ def test_a_figure_is_drawn_with_the_project_style(tmp_path):
         "    made.append(style is not None and all(matplotlib.rcParams[k] == v for k, v in style.STYLE.items()))\n"
         "    init(self, *a, **k)\n"
         "mf.Figure.__init__ = spy\n"
-        f"for name in ('a.svg', 'b.svg'): detect.plot_detection(acc, gyr, 100.0, det, r'{tmp_path}' + '/' + name)\n"
+        "from calib.figures import segment_plots\n"
+        f"for name in ('a.svg', 'b.svg'):\n"
+        f"    segment_plots.static_detection(acc, gyr, 100.0, det, r'{tmp_path}' + '/' + name)\n"
         "assert made == [True, True], made\n")
     mods = _modules_after(code)
     assert "calib.figures.style" in mods

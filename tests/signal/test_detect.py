@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from calib.figures import segment_plots
 from calib.signal import detect
 from calib.ingest import importers
 from calib.io import recording
@@ -243,10 +244,10 @@ def test_add_segment_table_and_plot(tmp_path):
     with pytest.raises(ValueError, match="segment"):
         detect.add_segment_table(seg, det.intervals)
     # deterministic figure: same bytes twice, no software/date stamp
-    p1 = detect.plot_detection(ds["accel"].values, ds["gyro"].values, 100.0, det, tmp_path / "a.png",
-                               title="mikoff imu1", accel_units="m s-2", gyro_units="rad s-1")
-    p2 = detect.plot_detection(ds["accel"].values, ds["gyro"].values, 100.0, det, tmp_path / "b.png",
-                               title="mikoff imu1", accel_units="m s-2", gyro_units="rad s-1")
+    p1 = segment_plots.static_detection(ds["accel"].values, ds["gyro"].values, 100.0, det, tmp_path / "a.png",
+                                        title="mikoff imu1", accel_units="m s-2", gyro_units="rad s-1")
+    p2 = segment_plots.static_detection(ds["accel"].values, ds["gyro"].values, 100.0, det, tmp_path / "b.png",
+                                        title="mikoff imu1", accel_units="m s-2", gyro_units="rad s-1")
     b1 = p1.read_bytes()
     assert b1[:8] == b"\x89PNG\r\n\x1a\n" and b1 == p2.read_bytes()
     assert b"Software" not in b1 and b"Date" not in b1

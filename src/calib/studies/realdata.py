@@ -6,7 +6,7 @@ import json
 import numpy as np
 
 from calib import fieldcal
-from calib.figures import style as figures
+from calib.figures import segment_plots
 from calib.io import recording
 from calib.io.netcdf import write_netcdf
 from calib.io.atomic import write_text
@@ -20,27 +20,10 @@ def calibrate(recording_path, settings: dict, out_nc, out_json, fig, metrics_pat
     write_netcdf(res.to_dataset(), out_nc, prov)
     summary = res.summary()
     write_text(out_json, json.dumps(summary, indent=2, default=str))
-    _plot_intervals(ds, np.asarray(res.intervals, dtype=np.int64).reshape(-1, 2), res.detection_rule, fig)
+    segment_plots.static_intervals(ds, np.asarray(res.intervals, dtype=np.int64).reshape(-1, 2), res.detection_rule,
+                                   fig)
     metrics = {k: v for k, v in summary.items() if isinstance(v, (int, float))}
     metrics.update({k: v for k, v in getattr(res, "metrics", {}).items() if isinstance(v, (int, float))})
     write_text(metrics_path, json.dumps(metrics, indent=2))
     log(json.dumps(summary, indent=2, default=str))
     return res
-
-
-def _plot_intervals(ds, iv, rule, path):
-    """Accelerometer and gyro magnitude over time with the static intervals used by the calibration shaded."""
-    import matplotlib.pyplot as plt
-
-    fs = float(ds.attrs["sample_rate_hz"])
-    t = np.arange(ds.sizes["time"]) / fs
-    fig, axs = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-    for ax, var in zip(axs, ("accel", "gyro")):
-        ax.plot(t, np.linalg.norm(ds[var].values.astype(float), axis=1), lw=0.5, color="k")
-        for a, b in iv:
-            ax.axvspan(a / fs, b / fs, color="C2", alpha=0.25, lw=0)
-        ax.set_ylabel(f"|{var}| [{ds[var].attrs['units']}]")
-    axs[-1].set_xlabel("time [s]")
-    axs[0].set_title(f"{ds.attrs.get('sensor', '')}: {len(iv)} static intervals ({rule})"[:110], fontsize=8)
-    fig.tight_layout()
-    figures.save(fig, path)
