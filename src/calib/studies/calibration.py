@@ -16,7 +16,6 @@ import numpy as np
 import xarray as xr
 
 from calib.calibration import fit as cal
-from calib.figures import style as figures
 from calib.calibration import bound as calbound
 from calib.calibration import identifiability as idf
 from calib.calibration import objectives as ob
@@ -153,6 +152,8 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     ``identifiability.json``; ``default_calibration.json`` + ``.nc``; ``timings.csv``;
     ``calibration.metrics.json``.
     """
+    from calib.figures import calibration_plots   # matplotlib: imported only when drawing
+
     out = Path(out_dir)
     for sub in ("runs", "tables", "figures"):
         make_folder(out / sub)   # (inside an output set: removed again should the study end without its products)
@@ -206,14 +207,15 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     _table5(out / "tables" / "table5_methods.csv", runs, methods, success, best, tol)
     for m, fig_no in FIGURE_OF.items():
         if ("accel", m) in runs:
-            _fig_history(out / "figures" / f"figure{fig_no}_accel_{m}.png", runs[("accel", m)][2],
-                         f"Liu et al. (2021) Fig. {fig_no}: accelerometer, {m}", "L_a (eq. 7) [g²]")
+            calibration_plots.convergence(runs[("accel", m)][2], f"Liu et al. (2021) Fig. {fig_no}: accelerometer, {m}",
+                                          "L_a (eq. 7) [g²]", out / "figures" / f"figure{fig_no}_accel_{m}.png")
     if ("gyro_static", "ide") in runs:
-        _fig_history(out / "figures" / "figure6_gyro_static_ide.png", runs[("gyro_static", "ide")][2],
-                     "Liu et al. (2021) Fig. 6: gyro, static path, IDE", "L_g (eq. 7) [(°/h)²]")
+        calibration_plots.convergence(runs[("gyro_static", "ide")][2], "Liu et al. (2021) Fig. 6: gyro, static path, "
+                                      "IDE", "L_g (eq. 7) [(°/h)²]", out / "figures" / "figure6_gyro_static_ide.png")
     if ("gyro_dynamic", "ide") in runs:
-        _fig_history(out / "figures" / "figure8_gyro_dynamic_ide.png", runs[("gyro_dynamic", "ide")][2],
-                     "Liu et al. (2021) Fig. 8: gyro, dynamic path (eq. 26), IDE", "L_gm (eq. 26), relative")
+        calibration_plots.convergence(runs[("gyro_dynamic", "ide")][2], "Liu et al. (2021) Fig. 8: gyro, dynamic "
+                                      "path (eq. 26), IDE", "L_gm (eq. 26), relative",
+                                      out / "figures" / "figure8_gyro_dynamic_ide.png")
 
     # ---- identifiability and the default calibration ----
     t = time.perf_counter()
@@ -250,31 +252,26 @@ def truth_vector(truth, sensor):
 
 
 def _noise_products(inp, out, prov):
-    import matplotlib.pyplot as plt
+    """``noise.nc`` and ``figures/allan.png``: the Allan deviation of each sensor pooled over the static positions,
+    with its 95 % interval."""
+    from calib.figures import calibration_plots   # matplotlib: imported only when drawing
 
-    data, coords = {}, {}
-    fig, axs = plt.subplots(1, 2, figsize=(9, 3.5))
-    for ax, (sensor, res) in zip(axs, (("accel", inp.accel_noise), ("gyro", inp.gyro_noise))):
+    data, coords, panels = {}, {}, []
+    for sensor, res in (("accel", inp.accel_noise), ("gyro", inp.gyro_noise)):
         tau = np.asarray(res.tau)
+        unit = res.unit or "count s-1"
         coords[f"tau_{sensor}"] = (f"tau_{sensor}", tau, {"units": "s", "long_name": f"{sensor} averaging time"})
-        data[f"adev_{sensor}"] = ((f"tau_{sensor}", "axis"), np.asarray(res.adev).reshape(len(tau), -1)[:, :3],
-                                  {"units": res.unit or "count s-1", "long_name": f"{sensor} Allan deviation"})
+        ad = np.asarray(res.adev).reshape(len(tau), -1)[:, :3]
         lo = np.asarray(res.lo).reshape(len(tau), -1)[:, :3]
         hi = np.asarray(res.hi).reshape(len(tau), -1)[:, :3]
-        data[f"adev_{sensor}_lo"] = ((f"tau_{sensor}", "axis"), lo, {"units": res.unit or "count s-1",
+        data[f"adev_{sensor}"] = ((f"tau_{sensor}", "axis"), ad, {"units": unit,
+                                  "long_name": f"{sensor} Allan deviation"})
+        data[f"adev_{sensor}_lo"] = ((f"tau_{sensor}", "axis"), lo, {"units": unit,
                                      "long_name": f"{sensor} Allan deviation, lower end of the 95 % interval"})
-        data[f"adev_{sensor}_hi"] = ((f"tau_{sensor}", "axis"), hi, {"units": res.unit or "count s-1",
+        data[f"adev_{sensor}_hi"] = ((f"tau_{sensor}", "axis"), hi, {"units": unit,
                                      "long_name": f"{sensor} Allan deviation, upper end of the 95 % interval"})
-        ad = np.asarray(res.adev).reshape(len(tau), -1)[:, :3]
-        for j in range(ad.shape[1]):
-            ax.loglog(tau, ad[:, j], "o-", ms=3, label="xyz"[j])
-            ax.fill_between(tau, lo[:, j], hi[:, j], alpha=0.2)
-        ax.set_xlabel("τ [s]")
-        ax.set_ylabel(f"Allan deviation [{res.unit or 'count s-1'}]")
-        ax.set_title(f"{sensor}: pooled over the static positions")
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    figures.save(fig, out / "figures" / "allan.png")
+        panels.append((sensor, tau, ad, lo, hi, unit))
+    calibration_plots.noise_allan(panels, out / "figures" / "allan.png")
     ds = xr.Dataset(data, coords={**coords, "axis": ["x", "y", "z"]},
                     attrs={"method": "overlapping Allan deviation pooled over static segments, 95 % chi-square "
                                      "intervals; sigma of a segment mean = ADEV at tau = segment duration"})
@@ -326,22 +323,6 @@ def _table5(path, runs, methods, success, best, tol):
     rows.append(f"# success: final L <= (1 + {tol}) L*, with L* the best optimum found by 10 multi-start least-squares "
                 f"runs and all runs of all methods (L*: " + "; ".join(f"{k} {v:.6g}" for k, v in best.items()) + ")")
     write_text(path, "\n".join(rows) + "\n")
-
-
-def _fig_history(path, hist, title, ylabel):
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 3.6))
-    g = np.arange(hist.shape[1])
-    for i, h in enumerate(hist):
-        ax.plot(g, h, lw=0.7, label=f"one line per run ({len(hist)} runs)" if i == 0 else "_nolegend_")
-    figures.auto_log(ax, hist)
-    ax.set_xlabel("generation")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title + f" ({len(hist)} runs)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    figures.save(fig, path)
 
 
 NO_SLOW_NOISE_NOTE = ("the sigma of the segment means comes from the Allan deviation of the session's own static "
@@ -797,25 +778,10 @@ def z_products(results: list, ccfg: dict, n_seeds: int, out_csv, fig, metrics_pa
     write_text(out_csv, "\n".join(rows) + "\n")
     write_text(metrics_path, json.dumps(metrics, indent=2))
     log("\n".join(rows))
-    import matplotlib.pyplot as plt
+    # the error bars: mean and spread over the seeds of every parameter's z, for each sigma reported
+    stats = {key: {s: (za[key][s].mean(0), za[key][s].std(0, ddof=1) if n_seeds > 1 else None)
+                   for s in ("accel", "gyro")} for key in (("with", "segment") if main == "with" else (main,))}
+    from calib.figures import calibration_plots   # matplotlib: imported only when drawing
 
-    fig_, axs = plt.subplots(1, 2, figsize=(10, 3.5), sharey=True)
-    for ax, (sensor, title) in zip(axs, (("accel", "accel (9-parameter norm form)"), ("gyro", "gyro (eq. 25)"))):
-        x = np.arange(len(names[sensor]))
-        if main == "with":
-            zz = za["segment"][sensor]
-            ax.errorbar(x - 0.15, zz.mean(0), yerr=zz.std(0, ddof=1) if n_seeds > 1 else None, fmt="s", color="0.6",
-                        label="segment-only sigma")
-        zz = za[main][sensor]
-        ax.errorbar(x + (0.15 if main == "with" else 0.0), zz.mean(0), yerr=zz.std(0, ddof=1) if n_seeds > 1 else None,
-                    fmt="o", color="C0", label="with long static record" if main == "with" else "segment-only sigma")
-        ax.axhspan(-1, 1, color="C2", alpha=0.15)
-        ax.set_xticks(x, names[sensor], rotation=60, fontsize=7)
-        ax.set_xlabel("parameter")
-        ax.set_title(title)
-        ax.legend(fontsize=7)
-    axs[0].set_ylabel("z = (estimate − truth) / SE: mean ± std")
-    fig_.suptitle(f"Standard errors against the truth over {n_seeds} simulated sessions")
-    fig_.tight_layout()
-    figures.save(fig_, fig)
+    calibration_plots.z_scores(stats, names, main, n_seeds, fig)
     return metrics

@@ -18,7 +18,6 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 import xarray as xr
 
@@ -26,7 +25,6 @@ from calib.core.errors import ResultCheckError
 from calib.core.progress import Progress
 from calib.diagnosis import diagnose_recording, is_shape_parameter
 from calib.diagnosis.problem import settings_of
-from calib.figures import style as figures
 from calib.io.atomic import write_json, write_text
 from calib.io.netcdf import write_netcdf
 from calib.studies import diagnosis_proof as proof
@@ -170,36 +168,6 @@ def power_csv(power: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def power_figure(power: dict, path):
-    """Detection rate against the injected magnitude (as a fraction of the proof magnitude), one line per
-    effect, the 80 % line and the binomial standard error of each point."""
-    fig, ax = plt.subplots(figsize=(8, 5))
-    for i, (nm, p) in enumerate(power.items()):
-        pts = sorted(p["points"], key=lambda q: q["scale"])
-        if not pts:
-            continue
-        x = np.array([q["scale"] for q in pts])
-        r = np.array([q["detected"] / q["n"] for q in pts])
-        se = np.sqrt(r * (1 - r) / np.array([q["n"] for q in pts]))
-        ax.errorbar(x, r, yerr=se, marker="o", ms=4, capsize=2, lw=1, label=nm,
-                    color=f"C{i % 10}", ls="-" if i < 10 else "--")
-    if not power:
-        ax.set_axis_off()
-        ax.text(0.5, 0.5, "no detection-power scan in this run (diagnosis.proof.power_seeds: 0)",
-                ha="center", va="center", transform=ax.transAxes)
-        return figures.save(fig, path)
-    ax.axhline(0.8, color="k", lw=0.8, ls=":")
-    ax.set_xscale("log")
-    figures.plain_log_ticks(ax, "x")
-    ax.set_ylim(-0.03, 1.03)
-    ax.set_xlabel("injected magnitude / proof magnitude")
-    ax.set_ylabel("fraction of seeds in which the effect is named")
-    ax.set_title("Detection power of the mismatch diagnosis (dotted: 80 %)")
-    ax.legend(fontsize=7, loc="lower right", ncol=2)
-    fig.tight_layout()
-    return figures.save(fig, path)
-
-
 def proof_stage(out_dir, n_seeds: int, first_seed: int, settings=None, sessions=None, power_seeds: int = 0,
                 workers: int = 2, base=None, site=None, prov=None, metrics_path=None, log=print,
                 enforce: bool = True, injection: str = "physical") -> dict:
@@ -298,7 +266,9 @@ def _proof_products(out, out_dir, n_seeds, names, prov, metrics_path, log, enfor
     write_netcdf(proof_dataset(out), out_dir / "proof.nc", prov)
     # written also without a scan (power_seeds: 0): an empty table and a figure that says so
     write_text(out_dir / "power.csv", power_csv(out.get("power") or {}))
-    power_figure(out.get("power") or {}, out_dir / "power.png")
+    from calib.figures import power_plots   # matplotlib: imported only when drawing
+
+    power_plots.detection_power(out.get("power") or {}, out_dir / "power.png")
     metrics = {"n_seeds": n_seeds, "sessions": len(names)}
     for s in out["sessions"]:
         m = {"rate": s["rate"], "false_discovery_rate": s["false_discovery_rate"]}

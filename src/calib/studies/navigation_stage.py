@@ -66,7 +66,10 @@ def run_static_check(recording_path, cal_dir, out_nc, fig, metrics_path, check: 
     res.attrs.update({"initial_condition": "true position and attitude (Liu 2021 §4.2)",
                       "vertical_channel": "held", "methods": json.dumps(notes)})
     write_netcdf(res, out_nc, prov)
-    _fig10(fig, res)
+    # matplotlib with the project's rc settings, imported here: the navigate rule draws nothing and starts sooner
+    from calib.figures import navigation_plots
+
+    navigation_plots.static_check(res, fig)
     metrics = {m: {"max_abs_vE_m_s": float(np.abs(res["vE_err"].sel(calibration=m)).max()),
                    "max_abs_vN_m_s": float(np.abs(res["vN_err"].sel(calibration=m)).max()),
                    "final_position_error_m": float(np.hypot(res["north_err_m"].sel(calibration=m)[-1],
@@ -74,34 +77,6 @@ def run_static_check(recording_path, cal_dir, out_nc, fig, metrics_path, check: 
                for m in methods}
     write_text(metrics_path, json.dumps(metrics, indent=2))
     return res
-
-
-def _fig10(path, res):
-    # imported here (the project's rc settings first): the navigate rule draws nothing and starts ~0.6 s sooner
-    from calib.figures import style as figures
-    import matplotlib.pyplot as plt
-
-    fig, axs = plt.subplots(2, 2, figsize=(9, 6), sharex=True)
-    t = res["time"].values / 3600.0
-    panels = [("vE_err", "east velocity error [m/s]"), ("vN_err", "north velocity error [m/s]"),
-              ("lat_err_arcmin", "latitude error [′]"), ("lon_err_arcmin", "longitude error [′]")]
-    names = [str(m) for m in res["calibration"].values]
-    for ax, (v, lab) in zip(axs.flat, panels):
-        for m in names:
-            ax.plot(t, res[v].sel(calibration=m).values, lw=1.4 if m == "default" else 0.9, label=m,
-                    zorder=3 if m == "default" else 2)
-        if "default" in names:   # keep the default calibration's curve readable beside much larger ones
-            d = float(np.nanmax(np.abs(res[v].sel(calibration="default").values)))
-            if d > 0 and float(np.nanmax(np.abs(res[v].values))) > 20 * d:
-                ax.set_yscale("symlog", linthresh=1.2 * d)
-                lab += "\n(linear within ±" + f"{1.2 * d:.2g}, log beyond)"
-        ax.set_ylabel(lab)
-    for ax in axs[-1]:
-        ax.set_xlabel("time [h]")
-    axs[0, 0].legend(fontsize=7)
-    fig.suptitle("Liu et al. (2021) Fig. 10: static navigation with each method's calibration (true initial state)")
-    fig.tight_layout()
-    figures.save(fig, path)
 
 
 def load_calibration(nc_path):
