@@ -189,20 +189,38 @@ def param_entries(prob: Problem, f: Fit, key, marginal: bool | None = None):
     for j, v, s in zip(idx, vals, se):
         ent = {"name": c.names[j], "value": float(v), "ci95": [float(v - 1.96 * s), float(v + 1.96 * s)],
                "se": float(s), "unit": c.units[j], "axis": c.axes[j], "interval": how}
-        if c.effect in IEEE_ASYMMETRY:
-            # the library's d = asym |x| is K(1 + asym) above zero and K(1 - asym) below: the field's scale-factor
-            # asymmetry (IEEE Std 528 / 1293) is (K+ - K-) / Kbar = 2 asym
-            ent["ieee"] = {"name": IEEE_ASYMMETRY[c.effect], "value": 2.0 * float(v),
-                           "ci95": [2.0 * float(v - 1.96 * s), 2.0 * float(v + 1.96 * s)], "unit": "ppm",
-                           "definition": "(K+ - K-) / Kbar, K+ and K- the scale factors for positive and negative "
-                                         "inputs, Kbar their mean"}
-        out.append(ent)
+        out.append(standard_entry(c.effect, ent))
     return out
 
 
-#: the IEEE name of the library's asymmetry terms (their reported value is twice the internal parameter)
-IEEE_ASYMMETRY = {"accel_scale_asymmetry": "scale factor asymmetry (IEEE Std 1293)",
-                  "gyro_scale_asymmetry": "scale factor asymmetry (IEEE Std 528 / 952)"}
+#: the library's asymmetry terms and the standard their reported figure follows. The term d |y| scales the input
+#: by K(1 + d) above zero and K(1 - d) below, so the field's scale factor asymmetry (K+ - K-) / Kbar (IEEE Std 528,
+#: 1293, 952) is 2 d: the reported figure is the standard one, the internal d is kept labelled as such
+STANDARD_ASYMMETRY = {"accel_scale_asymmetry": "IEEE Std 1293 (accelerometers)",
+                      "gyro_scale_asymmetry": "IEEE Std 528 / 952 (gyros)"}
+#: the standard name of the asymmetry figure and its value per unit of the internal parameter
+ASYMMETRY_NAME, ASYMMETRY_FACTOR = "scale_factor_asymmetry_ppm", 2.0
+ASYMMETRY_DEFINITION = ("(K+ - K-) / Kbar, K+ and K- the scale factors for positive and negative inputs, Kbar their "
+                        "mean")
+INTERNAL_ASYMMETRY = ("the library's model parameter d of the term d |y| (scale K(1 + d) for y > 0, K(1 - d) below): "
+                      "half the standard scale factor asymmetry")
+
+
+def standard_entry(effect: str, ent: dict) -> dict:
+    """The reported entry of one parameter: for the asymmetry terms the standard scale factor asymmetry
+    (:data:`STANDARD_ASYMMETRY`: name ``scale_factor_asymmetry_ppm[axis]``, value, interval and standard error
+    2 x the internal ``asym_ppm``), with the internal parameter kept under ``internal_model_parameter``; any other
+    parameter as it is."""
+    if effect not in STANDARD_ASYMMETRY:
+        return ent
+    k = ASYMMETRY_FACTOR
+    out = {"name": f"{ASYMMETRY_NAME}[{ent['axis']}]" if ent.get("axis") else ASYMMETRY_NAME,
+           "value": k * ent["value"], "ci95": [k * ent["ci95"][0], k * ent["ci95"][1]], "se": k * ent["se"],
+           "unit": "ppm", "axis": ent.get("axis"), "interval": ent.get("interval"),
+           "quantity": "scale factor asymmetry", "standard": STANDARD_ASYMMETRY[effect],
+           "definition": ASYMMETRY_DEFINITION,
+           "internal_model_parameter": {**ent, "meaning": INTERNAL_ASYMMETRY}}
+    return out
 
 
 def _aliases(prob: Problem, final: Fit, key, geometry_angles):
@@ -252,7 +270,9 @@ def _absent(prob: Problem, final: Fit, table):
             continue
         pars = param_entries(prob, fk, k)
         bounds = [{"name": p["name"], "upper_bound_abs": max(abs(p["ci95"][0]), abs(p["ci95"][1])), "value": p["value"],
-                   "se": p["se"], "unit": p["unit"]} for p in pars]
+                   "se": p["se"], "unit": p["unit"],
+                   **({k: p[k] for k in ("standard", "definition", "internal_model_parameter") if k in p})}
+                  for p in pars]
         undet = [c.names[j] for j in range(c.p) if j not in set(c.active.tolist())]
         r = tab.get(k, {})
         out.append({"effect": c.effect, "sensor": c.sensor, "key": k, "upper_bound_95": bounds,

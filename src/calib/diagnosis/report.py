@@ -110,14 +110,17 @@ def report_markdown(rep: dict) -> str:
         L.append("| parameter | value | 95 % interval | unit |")
         L.append("|---|---|---|---|")
         for p in f["parameters"]:
-            L.append(f"| {p['name']} | {fmt(p['value'], 5)} | [{fmt(p['ci95'][0], 5)}, {fmt(p['ci95'][1], 5)}] "
+            name = p["name"] + (f" ({p['standard']}: {p['definition']})" if p.get("standard") else "")
+            L.append(f"| {name} | {fmt(p['value'], 5)} | [{fmt(p['ci95'][0], 5)}, {fmt(p['ci95'][1], 5)}] "
                      f"| {p['unit']} |")
-            if p.get("ieee"):
-                q = p["ieee"]
-                L.append(f"| {q['name']} [{p['axis']}] = {q['definition']} | {fmt(q['value'], 5)} | "
-                         f"[{fmt(q['ci95'][0], 5)}, {fmt(q['ci95'][1], 5)}] | {q['unit']} |")
         if f.get("tau_s"):
             L.append(f"| tau (profiled) | {f['tau_s']:g} | -- | s |")
+        internal = [p["internal_model_parameter"] for p in f["parameters"] if p.get("internal_model_parameter")]
+        if internal:
+            L.append("")
+            L.append(f"Internal model parameter ({internal[0]['meaning']}): " + "; ".join(
+                f"{q['name']} = {fmt(q['value'], 5)} [{fmt(q['ci95'][0], 5)}, {fmt(q['ci95'][1], 5)}] {q['unit']}"
+                for q in internal))
         if f.get("undetermined_parameters"):
             L.append("")
             L.append("Not determined by this path: " + ", ".join(f["undetermined_parameters"]))

@@ -35,7 +35,7 @@ from calib.sim import calibration_session as sim_session
 from calib.sim import physical as sim_physical
 from calib.sim import truth as sim_truth
 from calib.sim import unmodelled as sim_unmodelled
-from calib.studies.diagnosis_score import score
+from calib.studies.diagnosis_score import registry_name, reported_bounds, score
 from calib.studies.proof_sessions import PROOF_SESSIONS  # the sessions' names, kinds and effects
 from calib.core import seeds
 
@@ -283,11 +283,11 @@ def _proof_worker(args):
     if infos is not None:
         # every size parameter free, and only those the diagnosis estimated free (the others held at their truth:
         # the bound of the model the diagnosis fits)
-        fitted = {c["name"] for r in rows for c in r["coverage"]}
+        fitted = {registry_name(c["name"]) for r in rows for c in r["coverage"]}
         fisher_bounds = {"all_free": {}, "as_fitted": {}}
-        for J, enames in infos:
-            fisher_bounds["all_free"].update(sim_fisher.bounds_from(J, enames))
-            fisher_bounds["as_fitted"].update(sim_fisher.bounds_from(J, enames, free=fitted))
+        for J, enames in infos:     # under the names the diagnosis reports (the standard scale factor asymmetry)
+            fisher_bounds["all_free"].update(reported_bounds(sim_fisher.bounds_from(J, enames)))
+            fisher_bounds["as_fitted"].update(reported_bounds(sim_fisher.bounds_from(J, enames, free=fitted)))
     return {"name": name, "kind": kind, "scale": scale, "rows": rows, "end_to_end": e2e, "fisher": fisher_bounds,
             "t_build_s": t_build, "t_total_s": time.perf_counter() - t0}
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.diagnosis import AXES
+from calib.diagnosis.analysis import ASYMMETRY_FACTOR, ASYMMETRY_NAME
 from calib.diagnosis.limits import alias_keys
 
 def _truth_effects(truth) -> dict:
@@ -24,10 +25,32 @@ def truth_value(eff_params: dict, pname: str):
         ii = tuple(AXES.index(a) for a in idx.split(","))
     else:
         key, ii = pname, ()
+    factor = 1.0
+    if key == ASYMMETRY_NAME:     # the standard scale factor asymmetry (K+ - K-) / Kbar: 2 x the registry's asym_ppm
+        key, factor = "asym_ppm", ASYMMETRY_FACTOR
     if key not in eff_params:
         return None
-    v = np.asarray(eff_params[key], dtype=float)
+    v = factor * np.asarray(eff_params[key], dtype=float)
     return float(v[ii]) if ii else float(v)
+
+
+def registry_name(pname: str) -> str:
+    """The simulator registry's name of a reported parameter (``scale_factor_asymmetry_ppm[x]`` -> ``asym_ppm[x]``;
+    any other name as it is): what :mod:`calib.sim.fisher` names its bounds by."""
+    return pname.replace(ASYMMETRY_NAME, "asym_ppm", 1) if pname.startswith(ASYMMETRY_NAME) else pname
+
+
+def reported_bounds(bounds: dict) -> dict:
+    """Fisher bounds keyed by registry name (:func:`calib.sim.fisher.bounds_from`) under the names the diagnosis
+    reports: ``asym_ppm[x]`` becomes ``scale_factor_asymmetry_ppm[x]`` with twice its bound (the standard figure is
+    2 asym_ppm)."""
+    out = {}
+    for nm, b in bounds.items():
+        if nm.startswith("asym_ppm"):
+            out[nm.replace("asym_ppm", ASYMMETRY_NAME, 1)] = None if b is None else ASYMMETRY_FACTOR * b
+        else:
+            out[nm] = b
+    return out
 
 
 #: effects acting on both triads: each half is a key of its own (``effect/accel``, ``effect/gyro``)
