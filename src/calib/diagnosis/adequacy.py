@@ -12,6 +12,13 @@ not the level and slow part the search estimates from the window means (vector m
 model scales to the scatter of the segment means (an overdispersion it reports): an overdispersion can be
 reported, never pass a test.
 
+The measured noise still holds a slow part between the segments that the session's static samples (taus up to one
+segment) do not measure: the long static record's, or the session's within-segment random walk extended across the
+session. :func:`slow_noise_assumption` runs the same family on the noise measured within the segments alone (white
+noise and quantisation) and, where a fit passes only with that slow part, finds the smallest bias instability it
+needs and the length of a static record that decides; the verdict stands only where the record resolves a slow
+noise (:mod:`calib.diagnosis.analysis`).
+
 Where a test fails, :func:`unexplained_entries` says where the rest sits (sensor, axis, segment class, part of
 the session), how large it is in the sensor's output unit, and which generic shape in time fits it best
 (offset, linear or quadratic trend, a sinusoid of the best period on a grid): the open search of the residuals
@@ -20,12 +27,15 @@ that a library term is judged against.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
-from calib.core.distributions import chi2_sf
-from calib.diagnosis.geometry import AXES, SENSORS
-from calib.diagnosis.problem import Fit, Problem
+from calib.core.distributions import chi2_ppf, chi2_sf
+from calib.diagnosis.geometry import AXES, SENSORS, TO_MODEL
+from calib.diagnosis.noise import record_minutes, record_point_models, within_segment_blocks
+from calib.diagnosis.problem import Fit, Problem, base_estimates
+from calib.signal import allan, noisecov
 
 
 def measured_factors(prob: Problem) -> dict:
@@ -116,6 +126,208 @@ def adequacy(prob: Problem, f: Fit, alpha: float | None = None, L=None) -> dict:
         t["rejected"] = bool(r)
     return {"adequate": not any(rej), "alpha": alpha, "tests": tests,
             "method": "chi-square per subset of the whitened residuals, Holm step-down over the family"}
+
+
+def _temporary_adequacy(prob: Problem, f: Fit, L: dict) -> dict:
+    """:func:`adequacy` of ``f`` on the factors ``L`` of a trial noise, without keeping their padded copy in the
+    problem's whitening cache (the trials of :func:`slow_level_needed` are many and used once)."""
+    try:
+        return adequacy(prob, f, L=L)
+    finally:
+        prob.__dict__.get("_wc", {}).pop(("Lpad", id(L)), None)
+
+
+def slow_level_needed(prob: Problem, f: Fit, L_assumed: dict, C_within: dict, sensor: str, iters: int = 24) -> float:
+    """The smallest fraction ``m`` in [0, 1] of the between-segment slow noise of ``sensor`` (the difference of the
+    assumed covariance ``L_assumed L_assumed^T`` and the within-segment one ``C_within``, on its three axis blocks
+    together; the other sensor at the assumed noise) at which the adequacy family of ``f`` passes: the covariance
+    ``C_within + m (C_assumed - C_within)`` (a convex combination of two covariances: one for every m). Bisection
+    to 2^-iters; 0 when the within-segment noise of ``sensor`` alone passes, 1 when only the whole assumed level
+    does (nan when even that fails)."""
+    si = SENSORS.index(sensor)
+    keys = [k for k in prob.geom.obs["blocks"] if k[0] == si]
+    Ca = {k: L_assumed[k] @ L_assumed[k].T for k in keys}
+
+    def passes(m):
+        L = dict(L_assumed)
+        for k in keys:
+            L[k] = np.linalg.cholesky(C_within[k] + m * (Ca[k] - C_within[k]))
+        return _temporary_adequacy(prob, f, L)["adequate"]
+
+    if passes(0.0):
+        return 0.0
+    if not passes(1.0):
+        return float("nan")
+    lo, hi = 0.0, 1.0
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if passes(mid) else (mid, hi)
+    return hi
+
+
+def slow_avar(tau, tc: float, sigma: float) -> np.ndarray:
+    """Allan variance of the slow part ``(tc, sigma)`` of :class:`calib.diagnosis.noise.NoiseFit` (Tc = inf: a
+    random walk, AVAR = K^2 tau / 3 with K = sigma; else a Gauss-Markov bias, :func:`noisecov.gm_avar`)."""
+    tau = np.asarray(tau, float)
+    if sigma <= 0:
+        return np.zeros_like(tau)
+    if math.isinf(tc):
+        return sigma**2 * tau / 3.0
+    return noisecov.gm_avar(tau, sigma, tc)
+
+
+def record_minutes_needed(fs: float, taus, avar_fast, avar_slow) -> float:
+    """Length [min] of a static record of the same unit whose Allan deviation tells a slow noise of Allan variance
+    ``avar_slow`` (on the taus ``taus`` [s] that separate the segments of the session) from none: the shortest
+    record in which, at one of those taus, the lower end of the 95 % Allan band of a unit with that slow noise lies
+    above the Allan variance ``avar_fast`` of the noise without it. The band is the chi-square interval of the
+    overlapping Allan variance with the equivalent degrees of freedom of :func:`calib.signal.allan.edf_white` (as
+    the record's own Allan deviation is computed); the record reaches tau at half its length."""
+    best = math.inf
+    for tau, af, asl in zip(np.asarray(taus, float), np.asarray(avar_fast, float), np.asarray(avar_slow, float)):
+        if not asl > 0:
+            continue
+        need = af / (af + asl)          # lower band / true variance must exceed this
+
+        def shows(length_s):
+            edf = float(allan.edf_white(length_s * fs + 1.0, max(tau * fs, 1.0)))
+            return edf / float(chi2_ppf(0.975, edf)) >= need
+
+        lo = 2.0 * tau
+        if shows(lo):
+            best = min(best, lo)
+            continue
+        hi = lo
+        while not shows(hi):
+            hi *= 2.0
+            if hi > 1e8:
+                break
+        else:
+            for _ in range(40):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if shows(mid) else (mid, hi)
+            best = min(best, hi)
+    return best / 60.0
+
+
+def segment_lags(prob: Problem) -> np.ndarray:
+    """The taus [s] at which slow noise moves the window means against each other: log-spaced from the shortest
+    window to the span of the session's windows (first start to last end)."""
+    g = prob.geom
+    t0 = np.array([g.time_s[w.i0] for w in g.windows])
+    dur = np.array([w.n * g.dt for w in g.windows])
+    span = float(np.max(t0 + dur) - np.min(t0))
+    lo = float(max(np.min(dur), g.dt))
+    return np.geomspace(lo, max(span, lo), 48)
+
+
+def slow_noise_assumption(prob: Problem, f: Fit, adq: dict, *, L_assumed: dict, slow: dict, source: str,
+                          source_kind: str, record=None) -> dict:
+    """What an adequacy verdict of ``f`` assumes of the slow noise between the segments.
+
+    ``adq`` is the family of :func:`adequacy` on the factors ``L_assumed`` (the noise the verdict used), whose
+    slow part per sensor axis is ``slow[sensor][axis] = (Tc, sigma)`` (Tc = inf: a random walk of density sigma),
+    taken from ``source`` (``source_kind``). The same family is run on the noise the session measures within its
+    segments alone (:func:`calib.diagnosis.noise.within_segment_blocks`). When that family fails and ``adq``
+    passes, the verdict rests on the slow level: per sensor that needs it, the smallest fraction of its assumed
+    between-segment variance with which the family passes (:func:`slow_level_needed`) gives the minimum bias
+    instability X per axis (sigma or K times its square root), and :func:`record_minutes_needed` the length of a
+    static record that tells X from none on the taus of the segment layout (:func:`segment_lags`).
+
+    With a long static record (``record``; the tests use the upper end of its 95 % Allan band), the level is
+    *measured* on an axis when the record resolves a slow noise there (the fit to its Allan point estimate keeps one
+    by BIC, :func:`calib.diagnosis.noise.record_point_models`): the band is then an interval of a measured quantity.
+    Otherwise the verdict rests on an assumed level (``rests_on_assumed_level``): the upper end of a band the record
+    cannot close, or, without a record, the session's own
+    within-segment random walk extended between the segments."""
+    g = prob.geom
+    out = {"source": source, "source_kind": source_kind, "record": str(record) if record else None,
+           "record_minutes": record_minutes(record) if record else None,
+           "levels": [], "rests_on_slow_level": False, "rests_on_assumed_level": False,
+           "record_minutes_needed": None, "statement": ""}
+    if prob.kind != "vector" or prob.noise is None:
+        out["within_segment"] = None
+        out["note"] = "the norm model's noise holds no slow part between segments: nothing assumed"
+        return out
+    Cw, Lw = within_segment_blocks(g, prob.noise)
+    aw = adequacy(prob, f, L=Lw)
+    out["within_segment"] = {"adequate": aw["adequate"], "alpha": aw["alpha"], "method": (
+        "the same family on the noise measured within the segments alone (white noise and quantisation of the "
+        "static segments' Allan deviation, its rate random walk within each window; no slow noise between the "
+        "segments)"), "tests": [{k: t[k] for k in ("name", "chi2", "dof", "p", "p_holm", "rejected")}
+                               for t in aw["tests"]]}
+    if aw["adequate"] or not adq["adequate"]:
+        return out
+    out["rests_on_slow_level"] = True
+    rejected = {(t["sensor"], t["axis"]) for t in aw["tests"] if t["rejected"] and t["scope"] == "sensor_axis"}
+    involved = [s for s in SENSORS if any(t["rejected"] and (t.get("sensor") in (s, None)) for t in aw["tests"])]
+    taus = segment_lags(prob)
+    M = base_estimates(f.theta)[0]
+    for s in involved:
+        m = slow_level_needed(prob, f, L_assumed, Cw, s)
+        if not m > 0:
+            continue
+        axes = [a for a in range(3) if (s, AXES[a]) in rejected] or list(range(3))
+        for a in axes:
+            tc, sig = slow[s][a]
+            if not sig > 0:
+                continue
+            detected = None
+            if record:      # a slow part the record's own Allan deviation resolves (BIC), not only one it allows
+                pm = record_point_models(record)[s]
+                detected = bool(pm.fit and pm.fit[a].get("slow_detected_bic", False) and pm.slow[a] != "none")
+            x = math.sqrt(m) * sig
+            af = 3.0 * prob.noise.Q_shape[s][a] ** 2 / taus**2 + prob.noise.N_shape[s][a] ** 2 / taus
+            need_min = float(record_minutes_needed(g.fs, taus, af, slow_avar(taus, tc, x)))
+            unit = g.units_out[s]
+            ent = {"sensor": s, "axis": AXES[a], "unit": unit,
+                   "assumed": ({"kind": "random walk", "K": sig, "unit": f"{unit} s^-1/2"} if math.isinf(tc) else
+                               {"kind": "Gauss-Markov bias", "sigma": sig, "tc_s": tc, "unit": unit}),
+                   "fraction_of_assumed_variance_needed": m,
+                   "minimum_for_adequacy": x, "minimum_unit": f"{unit} s^-1/2" if math.isinf(tc) else unit,
+                   "record_minutes_needed": need_min if math.isfinite(need_min) else None,
+                   "record_resolves_it": detected}
+            if M[s][a, a] != 0:       # in the input unit: over the scale factor (K E)_aa
+                ent["minimum_for_adequacy_input_unit"] = x / abs(M[s][a, a]) / TO_MODEL[g.units_in[s]]
+                ent["input_unit"] = g.units_in[s] + (" s^-1/2" if math.isinf(tc) else "")
+            out["levels"].append(ent)
+    out["rests_on_assumed_level"] = (not all(e["record_resolves_it"] for e in out["levels"])
+                                     if out["levels"] else record is None)
+    fails = "; ".join(f"{t['name']} chi2 {t['chi2']:.4g} on {t['dof']:.3g} (p Holm {t['p_holm']:.2g})"
+                      for t in aw["tests"] if t["rejected"])
+
+    def levels(es):
+        return "; ".join(
+            f"{e['sensor']} {e['axis']} >= {e['minimum_for_adequacy']:.3g} {e['minimum_unit']}"
+            + (f" ({e['minimum_for_adequacy_input_unit']:.3g} {e['input_unit']})" if "input_unit" in e else "")
+            + f" (assumed {e['assumed'].get('sigma', e['assumed'].get('K')):.3g}"
+            + (f", Tc {e['assumed']['tc_s']:g} s" if "tc_s" in e["assumed"] else "") + ")" for e in es)
+
+    assumed = [e for e in out["levels"] if not e["record_resolves_it"]]
+    measured = [e for e in out["levels"] if e["record_resolves_it"]]
+    need = max((e["record_minutes_needed"] for e in assumed if e["record_minutes_needed"] is not None),
+               default=math.nan)
+    out["record_minutes_needed"] = need if math.isfinite(need) else None
+    rec_min = out["record_minutes"]
+    decides = (f"a static record of the same unit of {math.ceil(need)} min decides (calib diagnose --noise-record)"
+               if math.isfinite(need) else "a long static record of the same unit decides")
+    if record:
+        decides = (f"the static record {Path(record).name} ({rec_min:.3g} min) does not resolve a slow noise there (its "
+                   "Allan deviation keeps none by BIC: the tests take the upper end of its 95 % band, which it cannot "
+                   "exclude); "
+                   + (decides if not rec_min >= need else
+                      f"{math.ceil(need)} min of record suffice to show that level, so the misfit is more than the slow "
+                      "noise the record measures unless the bias instability sits at the top of its band"))
+    parts = [f"against the noise measured within the segments alone the fit is off ({fails})"]
+    if assumed or not out["levels"]:
+        parts.append(f"it passes only with a bias instability between the segments of at least "
+                     f"{levels(assumed) or 'the assumed level'}, assumed from {source}; {decides}")
+    if measured:
+        parts.append(f"the bias instability it needs on {', '.join(e['sensor'] + ' ' + e['axis'] for e in measured)} "
+                     f"(at least {levels(measured)}) is measured by the static record {Path(record).name} "
+                     f"({rec_min:.3g} min): its Allan deviation resolves a slow noise there")
+    out["statement"] = "; ".join(parts)
+    return out
 
 
 def _shape(t, r, w):

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import copy
 import math
+from pathlib import Path
 
 import numpy as np
 
 from calib.core.distributions import chi2_sf
-from calib.diagnosis.adequacy import adequacy, measured_factors, unexplained_entries
+from calib.diagnosis.adequacy import adequacy, measured_factors, slow_noise_assumption, unexplained_entries
 from calib.diagnosis.blas import solve_lower
 from calib.diagnosis.fitting import chi2_rank, fit
 from calib.diagnosis.generic import form_alternatives, open_search
@@ -17,7 +18,7 @@ from calib.diagnosis.geometry import ROWS, SENSORS
 from calib.diagnosis.term_identifiability import discrimination_noncentrality, library_geometry, separating_segments
 from calib.diagnosis.library import EXPERIMENTS, build_library
 from calib.diagnosis.locate import block_table, locate
-from calib.diagnosis.noise import covariance_blocks, profile_noise, shape_eig
+from calib.diagnosis.noise import covariance_blocks, profile_noise, shape_eig, with_measured_slow
 from calib.diagnosis.problem import Fit, Problem, base_estimates, lstsq
 from calib.diagnosis.selection import is_slow, renoise, stepwise, testable_keys
 
@@ -366,6 +367,30 @@ def confirm_on_measured_noise(prob: Problem, final: Fit):
     return final, dropped
 
 
+def _slow_basis(prob: Problem, estimated: bool = False) -> dict:
+    """The slow part per sensor axis of the noise an adequacy verdict used, where it comes from and what kind of
+    source that is (:func:`calib.diagnosis.adequacy.slow_noise_assumption`): the level estimated from the window
+    means (``estimated``), the long static record of the ``noise_record`` setting (the upper end of its 95 % Allan
+    band), or else the rate random walk of the session's own within-segment Allan deviation extended between the
+    segments (the default of :func:`calib.diagnosis.vector.setup_problem`)."""
+    nz, rec = prob.noise, prob.settings.get("noise_record")
+    if nz is None:       # the norm model: no slow part between the segments in its noise
+        return {"slow": {}, "source_kind": "none", "source": prob.noise_basis}
+    if estimated:
+        return {"slow": nz.slow, "source_kind": "estimated from the window means",
+                "source": "restricted maximum likelihood from the window means: " + "; ".join(
+                    f"{s} {'xyz'[a]}: {nz.describe(s, a)}" for s in SENSORS for a in range(3))}
+    if rec:
+        name = Path(rec).name
+        return {"slow": with_measured_slow(nz, prob.geom, rec).slow, "record": rec,
+                "source_kind": "measured static record",
+                "source": f"the long static record {name} (upper end of its 95 % Allan band)"}
+    return {"slow": {s: [(math.inf, float(nz.K_allan[s][a])) for a in range(3)] for s in SENSORS},
+            "source_kind": "default: the session's within-segment Allan random walk extended between the segments",
+            "source": ("the rate random walk fitted to the Allan deviation of the session's static segments, extended "
+                       "between the segments (not measured there)")}
+
+
 def analyse(prob: Problem) -> dict:
     """Steps 1-5 on a set-up problem; returns the report content (without file paths)."""
     st = prob.settings
@@ -456,6 +481,7 @@ def analyse(prob: Problem) -> dict:
                "hand placement or motion during the static segments, or physics outside the library"
                if raw is not None and raw[2] < st["chi2_p_adequate"] else "")
     helped = (" after " + ", ".join(f["key"] for f in found) + " (which helped)") if found else ""
+    adq_estimated = adequacy(prob, final, L=prob.L) if not slow_measured else None
     if not found and adq["before"]["adequate"] and not search["significant"]:
         verdict, reason = "adequate", ("the base model fits within the measured noise in every subset tested and no "
                                        "candidate term passes the tests")
@@ -474,7 +500,7 @@ def analyse(prob: Problem) -> dict:
                   + ", but as well with " + "; ".join(f"{r['alternative']} in place of {', '.join(r['replaces'])}"
                                                       for r in generic_rival)
                   + ": the poses do not establish the term (" + generic_rival[0]["experiment"] + ")")
-    elif not slow_measured and adequacy(prob, final, L=prob.L)["adequate"]:
+    elif not slow_measured and adq_estimated["adequate"]:
         verdict = "inconclusive"
         if prob.kind == "norm":
             reason = (f"misfit remains{helped} beyond the noise measured within the static segments ({where}): the "
@@ -490,6 +516,27 @@ def analyse(prob: Problem) -> dict:
     else:
         verdict = "unexplained"
         reason = f"misfit remains{helped} that no term of the library explains: {where or 'see adequacy'}" + scatter
+    # what the verdict assumes of the slow noise between the segments, and the same tests on the noise measured
+    # within the segments alone: an adequate (or explained) fit that passes only with a slow level the data do not
+    # measure is inconclusive, with the level it needs and the static record that would decide
+    if verdict == "inconclusive" and adq_estimated is not None and adq_estimated["adequate"] and prob.kind == "vector":
+        slow = _slow_basis(prob, estimated=True)
+        sna = slow_noise_assumption(prob, final, adq_estimated, L_assumed=prob.L, **slow)
+        if sna["statement"]:
+            reason += "; " + sna["statement"]
+    else:
+        slow = _slow_basis(prob)
+        judged = base if verdict == "adequate" else final
+        sna = slow_noise_assumption(prob, judged, adq["before" if verdict == "adequate" else "after"],
+                                    L_assumed=measured_factors(prob), **slow)
+        if verdict in ("adequate", "missing_physics") and sna["rests_on_assumed_level"]:
+            what = ("the base model is adequate" if verdict == "adequate" else
+                    "the found terms (" + ", ".join(f["key"] for f in found) + ") explain the data")
+            verdict, explained = "inconclusive", False
+            reason = f"{what} only if the slow noise the tests assume is there: {sna['statement']}"
+        elif sna["statement"]:
+            reason += "; " + sna["statement"]
+    adq["slow_noise"] = sna
     separations = []
     tk = testable_keys(prob)
     if detail and prob.kind == "vector" and "latitude_error" in tk and "gyro_g_sensitivity/gyro" in tk:

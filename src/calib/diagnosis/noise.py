@@ -49,6 +49,10 @@ class NoiseFit:
     scale: dict = field(default_factory=dict)     # level of the Allan shape per sensor axis (1: the Allan fit)
     N_shape: dict = field(default_factory=dict)   # white-noise shape (the Allan fit), scaled by sqrt(scale)
     Q_shape: dict = field(default_factory=dict)   # quantisation shape
+    # rate random walk K per axis of the Allan fit of the static segments [unit s^-1/2], before any level or slow part
+    # is estimated from the window means: the slow part the adequacy tests extend across a session without a long
+    # static record (:func:`calib.diagnosis.vector.setup_problem`)
+    K_allan: dict = field(default_factory=dict)
     # factorisations of the noise *shape* per axis block (:func:`shape_eig`), keyed by the shape values they
     # were computed for; set_level never changes the shape, so they stay valid for the whole diagnosis
     shape_cache: dict = field(default_factory=dict, repr=False, compare=False)
@@ -140,6 +144,7 @@ def fit_noise(geom: Geometry, y: dict, pulse_counter: dict | None = None) -> Noi
     nf.scale = {s: np.ones(3) for s in SENSORS}
     nf.N_shape = {s: N[s].copy() for s in SENSORS}
     nf.Q_shape = {s: Q[s].copy() for s in SENSORS}
+    nf.K_allan = {s: np.array([slow[s][a][1] for a in range(3)]) for s in SENSORS}
     return nf
 
 
@@ -477,10 +482,54 @@ def covariance_blocks(geom: Geometry, noise: NoiseFit, parts, cache=None):
     return C, L
 
 
+def within_segment_blocks(geom: Geometry, noise: NoiseFit):
+    """Per (sensor index, axis) covariance blocks and Cholesky factors of the noise the session measures within
+    its segments, with no slow part: white noise and quantisation of the Allan shape (before any level is estimated
+    from the window means), ``N^2 A_N + Q^2 A_Q``. Left out: every slow part -- a bias instability between the
+    segments, which the static samples of the session (taus up to one segment) do not measure."""
+    C, L = {}, {}
+    for si, s in enumerate(SENSORS):
+        AN, AQ, _ = covariance_parts(geom, s, rw_within_only=True)
+        for a in range(3):
+            c = noise.N_shape[s][a] ** 2 * AN + noise.Q_shape[s][a] ** 2 * AQ
+            C[(si, a)] = c
+            L[(si, a)] = np.linalg.cholesky(c)
+    return C, L
+
+
 # ----------------------------------------------------------------------------------------------------------
 # measured slow noise: a long static record of the same unit
 # ----------------------------------------------------------------------------------------------------------
 _RECORD_MODELS: dict = {}
+_RECORD_POINT: dict = {}
+_RECORD_MINUTES: dict = {}
+
+
+def _record_key(path):
+    from pathlib import Path
+
+    p = Path(path)
+    return (str(p.resolve()), p.stat().st_mtime_ns)
+
+
+def record_point_models(path) -> dict:
+    """Per sensor, the noise model fitted to the *point estimate* of the Allan deviation of the long static record
+    ``path`` (the level the record measures; :func:`record_noise_models` fits the upper end of its 95 % band, the
+    level no record of that length excludes), fitted with it and cached alike."""
+    key = _record_key(path)
+    if key not in _RECORD_POINT:
+        _RECORD_MODELS.pop(key, None)
+        record_noise_models(path)
+    return _RECORD_POINT[key]
+
+
+def record_minutes(path) -> float:
+    """Length of the long static record ``path`` [min] (read with its noise models)."""
+    key = _record_key(path)
+    if key not in _RECORD_MINUTES:
+        _RECORD_MODELS.pop(key, None)
+        record_noise_models(path)
+    return _RECORD_MINUTES[key]
 
 
 def record_noise_models(path) -> dict:
@@ -495,7 +544,7 @@ def record_noise_models(path) -> dict:
     key = (str(p.resolve()), p.stat().st_mtime_ns)
     if key not in _RECORD_MODELS:
         ds = recording.load_arrays(p)   # numpy arrays: no xarray in calib diagnose's process
-        models = {}
+        models, points = {}, {}
         for s in SENSORS:
             la = noisecov.long_record_allan(ds, s)
             # the slow noise at the upper end of the record's 95 % Allan intervals: a record too short to resolve
@@ -506,8 +555,14 @@ def record_noise_models(path) -> dict:
             models[s] = noisecov.fit_mean_noise([hi], Q=noisecov.PULSE_COUNTER_Q if pc else None, unit=la.unit,
                                                 source=f"upper 95 % Allan band of the long static record {p.name} "
                                                        f"({la.n_samples / la.fs / 3600:.3g} h)")
-        _RECORD_MODELS.clear()
+            points[s] = noisecov.fit_mean_noise([la], Q=noisecov.PULSE_COUNTER_Q if pc else None, unit=la.unit,
+                                                source=f"Allan deviation (point estimate) of the long static record "
+                                                       f"{p.name} ({la.n_samples / la.fs / 3600:.3g} h)")
+        for cache in (_RECORD_MODELS, _RECORD_POINT, _RECORD_MINUTES):
+            cache.clear()
         _RECORD_MODELS[key] = models
+        _RECORD_POINT[key] = points
+        _RECORD_MINUTES[key] = la.n_samples / la.fs / 60.0
     return _RECORD_MODELS[key]
 
 

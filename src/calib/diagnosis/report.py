@@ -59,6 +59,30 @@ def report_markdown(rep: dict) -> str:
             L.append(f"| {t['name']} | {fmt(t['chi2'])} | {t['dof']:.3g} | {t['overdispersion']:.3g} | "
                      f"{fmt(t['p_holm'], 3)} | {'**fails**' if t['rejected'] else 'passes'} |")
         L.append("")
+    sn = rep.get("adequacy", {}).get("slow_noise")
+    if sn and sn.get("within_segment"):
+        L.append("## Slow noise between the segments: what the verdict assumes")
+        L.append("")
+        L.append(f"The tests above add a slow noise between the segments taken from {sn['source']} "
+                 f"({sn['source_kind']}). On the noise measured within the segments alone:")
+        L.append("")
+        L.append("| subset | chi2 | dof | p (Holm) | |")
+        L.append("|---|---|---|---|---|")
+        for t in sn["within_segment"]["tests"]:
+            L.append(f"| {t['name']} | {fmt(t['chi2'])} | {t['dof']:.3g} | {fmt(t['p_holm'], 3)} | "
+                     f"{'**fails**' if t['rejected'] else 'passes'} |")
+        L.append("")
+        for e in sn.get("levels", []):
+            conv = (f" ({fmt(e['minimum_for_adequacy_input_unit'], 3)} {e['input_unit']})"
+                    if "input_unit" in e else "")
+            shown = {True: "the record resolves it: measured", False: "the record does not resolve it: assumed",
+                     None: "no record: assumed"}[e["record_resolves_it"]]
+            L.append(f"- {e['sensor']} {e['axis']}: passes only with a bias instability of at least "
+                     f"{fmt(e['minimum_for_adequacy'], 3)} {e['minimum_unit']}{conv}; a static record of "
+                     f"{math.ceil(e['record_minutes_needed']) if e['record_minutes_needed'] is not None else 'n/a'}"
+                     f" min decides ({shown})")
+        if sn.get("levels"):
+            L.append("")
     srch = rep.get("open_search")
     if srch and srch.get("tests"):
         L.append("## Open search beyond the library (generic bases)")
