@@ -20,7 +20,6 @@ import xarray as xr
 from calib.drift import bound as crb_bound
 from calib.drift import psobe as drift
 from calib.core import earth
-from calib.figures import style as figures
 from calib.drift import pso
 from calib.io import recording
 from calib.nav import reader as nav_reader
@@ -37,6 +36,14 @@ from calib.core import seeds
 from calib.io.atomic import write_json, write_text
 
 AXES = ["x", "y", "z"]
+
+
+def _plots():
+    """The study's figures (:mod:`calib.figures.drift_plots`): matplotlib is imported only when a figure is drawn."""
+    from calib.figures import drift_plots   # matplotlib: imported only when drawing
+    return drift_plots
+
+
 #: He 2019 Table 1 (PSOBE, 50 tests) and its Ac values (§IV.A), for comparison
 PAPER_TABLE1 = {"max": [-0.01032, 0.01077, 0.01079], "min": [-0.01048, 0.01067, 0.009786],
                 "mean": [-0.01038, 0.01073, 0.01046], "std": [3.39e-5, 1.735e-5, 1.913e-4],
@@ -201,8 +208,9 @@ def run_pso_tests(recording_path, out_nc, out_table, out_baselines, out_timings,
     _write_table1(out_table, tab, crb_deg_h, kal_sigma)
     _write_baselines(out_baselines, base, truth, crb_deg_h)
     write_text(out_timings, "quantity,seconds\n" + "".join(f"{k},{v:.4f}\n" for k, v in timing.items()))
-    _fig2(fig2, est, truth, crb_deg_h)
-    _fig3(fig3, hist[0], dcfg["position_unit"])
+    plots = _plots()
+    plots.estimates_per_test(fig2, est, truth, crb_deg_h)
+    plots.convergence(fig3, hist[0], dcfg["position_unit"])
     z = (est.mean(0) - truth) / crb_deg_h
     axes = lambda v: {a: _finite(x) for a, x in zip(AXES, v)}  # noqa: E731
     metrics = {"Ac_of_mean_pct": dict(zip(AXES, tab["Ac_of_mean_pct"].tolist())),
@@ -244,39 +252,6 @@ def _write_baselines(path, base, truth, crb):
         z = (e - truth) / crb
         rows.append(",".join([m] + [f"{v:.6g}" for v in e] + [f"{v:.2f}" for v in ac] + [f"{v:.2f}" for v in z]))
     write_text(path, "\n".join(rows) + "\n")
-
-
-def _fig2(path, est, truth, crb):
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import MaxNLocator
-
-    fig, axs = plt.subplots(3, 1, figsize=(6.5, 6.5), sharex=True)
-    k = np.arange(1, len(est) + 1)
-    for i, ax in enumerate(axs):
-        ax.plot(k, est[:, i], "o-", ms=3, lw=0.8, label="PSOBE estimate")
-        ax.axhline(truth[i], color="k", lw=1, label="reference")
-        if np.isfinite(crb[i]):
-            ax.axhspan(truth[i] - 2 * crb[i], truth[i] + 2 * crb[i], color="C2", alpha=0.15, label="reference ± 2 CRB")
-        ax.set_ylabel(f"ε_{AXES[i]} [°/h]")
-    axs[0].legend(fontsize=7, loc="best")
-    axs[-1].set_xlabel("test")
-    axs[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
-    fig.suptitle("He et al. (2019) Fig. 2: gyro drift estimated in each PSOBE test")
-    fig.tight_layout()
-    figures.save(fig, path)
-
-
-def _fig3(path, hist, unit):
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    ax.plot(np.arange(len(hist)), hist, "o-", ms=3)
-    figures.auto_log(ax, hist)
-    ax.set_xlabel("generation")
-    ax.set_ylabel(f"J of eq. 18 (position in {unit})")
-    ax.set_title("He et al. (2019) Fig. 3: J of the global best, test 1")
-    fig.tight_layout()
-    figures.save(fig, path)
 
 
 def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: dict, site: dict, nav: dict,
@@ -339,7 +314,7 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
                     attrs={"frame": "errors = computed - true; attitude C_b^n = Rz(yaw) Rx(pitch) Ry(roll), ENU",
                            "nav_rate_hz": nav["nav_rate_hz"], "vertical_channel": "held at the initial height"})
     write_netcdf(ds, out_nc, prov)
-    _fig4(fig4, ds)
+    _plots().navigation_errors(fig4, ds)
     # residual drift along the Earth axis drives longitude: d(lambda)/dt = eps_N cos L + eps_U sin L (ENU)
     C = init.cbn()
     metrics = {}
@@ -374,29 +349,6 @@ def run_validation(recording_path, pso_nc, out_nc, fig4, metrics_path, session: 
     write_text(metrics_path, json.dumps(metrics, indent=2))
     log(json.dumps(metrics, indent=2))
     return ds
-
-
-def _fig4(path, ds):
-    import matplotlib.pyplot as plt
-
-    panels = [("pitch_err", "pitch [′]"), ("roll_err", "roll [′]"), ("yaw_err", "yaw [′]"),
-              ("vE_err", "east velocity [m/s]"), ("vN_err", "north velocity [m/s]"),
-              ("lon_err", "longitude [′]"), ("lat_err", "latitude [′]")]
-    fig, axs = plt.subplots(4, 2, figsize=(9, 9), sharex=True)
-    t = ds["time"].values / 3600.0
-    for ax, (var, lab) in zip(axs.flat, panels):
-        for s, color in zip(ds["stream"].values[:2], ("C0", "C3")):
-            ax.plot(t, ds[var].sel(stream=s).values, color=color, lw=0.8,
-                    label="without compensation" if s == "uncompensated" else "compensated (PSOBE mean)")
-        ax.set_ylabel(lab)
-    axs.flat[-1].axis("off")
-    axs.flat[0].legend(fontsize=7)
-    for ax in axs[-1]:
-        ax.set_xlabel("time [h]")
-    axs[2, 1].set_xlabel("time [h]")
-    fig.suptitle("He et al. (2019) Fig. 4: navigation errors with and without drift compensation")
-    fig.tight_layout()
-    figures.save(fig, path)
 
 
 def binomial_band(n: int, p: float = 0.95, level: float = 0.99):
@@ -562,22 +514,7 @@ def noise_seed_products(blocks: list, out_nc, out_csv, fig, metrics_path, sessio
     write_text(out_csv, "\n".join(rows) + "\n")
     write_text(metrics_path, json.dumps(metrics, indent=2))
     log("\n".join(rows))
-    import matplotlib.pyplot as plt
-
-    fig_, axs = plt.subplots(1, 3, figsize=(9, 3), sharey=True)
-    bins = np.linspace(-4, 4, 33)
-    xs = np.linspace(-4, 4, 200)
-    for j, ax in enumerate(axs):
-        for i, m in enumerate(names):
-            if m != "pso":   # PSOBE's drift-only model leaves it biased by the accelerometer bias (in the table)
-                ax.hist(z[i, :, j], bins=bins, density=True, alpha=0.5, label=m)
-        ax.plot(xs, np.exp(-xs**2 / 2) / math.sqrt(2 * math.pi), "k", lw=1, label="N(0, 1)")
-        ax.set_xlabel(f"z of ε_{AXES[j]}")
-    axs[0].set_ylabel("probability density")
-    axs[0].legend(fontsize=7)
-    fig_.suptitle(f"Drift error in Cramér–Rao bounds over {n_seeds} noise seeds")
-    fig_.tight_layout()
-    figures.save(fig_, fig)
+    _plots().noise_seed_z(fig, z, names, n_seeds)
     return ds
 
 
@@ -652,17 +589,6 @@ def run_real_drift(recording_path, out_json, fig, metrics_path, rcfg: dict, seed
     write_text(metrics_path, json.dumps({"within_band_all_level_axes": float(all(w for w in out["within_band"] if w is not None)),
                                               **{f"difference_{a}_deg_h": float(d) for a, d in zip(AXES, diff)}},
                                              indent=2))
-    import matplotlib.pyplot as plt
-
-    fig_, ax = plt.subplots(figsize=(6, 3.5))
-    x = np.arange(3)
-    ax.errorbar(x - 0.1, ests.mean(0), yerr=ests.std(0), fmt="o", label="PSOBE estimate (mean ± std over tests)")
-    ax.errorbar(x + 0.1, mean_gyro, yerr=band, fmt="s", label="mean gyro output ± (Ω + 2σ)")
-    ax.set_xticks(x, [f"ε_{a}" for a in AXES])
-    ax.set_ylabel("[°/h]")
-    ax.legend(fontsize=7)
-    ax.set_title(f"Real static recording, {win_s:.0f} s window")
-    fig_.tight_layout()
-    figures.save(fig_, fig)
+    _plots().real_drift(fig, ests, mean_gyro, band, win_s)
     log(json.dumps(out, indent=2))
     return out
