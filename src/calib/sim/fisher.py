@@ -36,6 +36,8 @@ import copy
 import math
 
 import numpy as np
+from scipy import sparse
+from scipy.linalg import solve_banded
 
 from calib.sim import effects as sim_effects
 from calib.sim import physical
@@ -290,3 +292,52 @@ def bounds(cfg: dict, effect_id: str, params: dict | None = None, sim=None, clea
     ``{name: bound or None}`` (None: not determined by this session), in the registry's units."""
     J, enames = information_for(cfg, effect_id, params, sim, clean, temperature)
     return bounds_from(J, enames, free)
+
+
+def information_exact(cols, sim) -> np.ndarray | None:
+    """Fisher information of the columns ``cols`` (list of (n, 6)) under the exact covariance of the simulator's
+    noise over the n samples (not Whittle's periodic approximation, :func:`information`): per channel
+    ``D^T Sigma^-1 D`` with ``Sigma = R + Q``, R the white noise and the pulse counter's carried remainder
+    (tridiagonal: ``sigma_w^2 + 1/6`` on the diagonal, ``-1/12`` beside it) and Q the stationary first-order
+    Gauss-Markov bias (``v a^|i-j|``, whose inverse T is tridiagonal), so that ``Sigma^-1 = T (R T + I)^-1`` is
+    one banded (pentadiagonal) solve per channel. Whittle's form treats the session as periodic: for an effect as
+    slow as the session (a warm-up, a temperature) it joins the end of the bias instability to its start and
+    overstates the information up to several times. None for a random-walk bias (not stationary)."""
+    nz = sim.noise
+    if nz["bias_model"] != "gauss_markov":
+        return None
+    n = cols[0].shape[0]
+    dt = 1.0 / float(sim.sample_rate_hz)
+    K = np.concatenate([sim.accel.K, sim.gyro.K])
+    sig_w, sig_b, tau = noise_terms(nz, dt)
+    P = len(cols)
+    J = np.zeros((P, P))
+    q = 1.0 if nz["quantize"] else 0.0
+    for c in range(6):
+        use = [k for k in range(P) if np.any(cols[k][:, c] != 0.0)]
+        if not use:
+            continue
+        D = np.stack([cols[k][:, c] for k in use], axis=1)
+        R = sparse.diags([np.full(n - 1, -q / 12.0), np.full(n, (K[c] * sig_w[c]) ** 2 + q / 6.0),
+                          np.full(n - 1, -q / 12.0)], [-1, 0, 1], format="csr")
+        v = (K[c] * dt * sig_b[c]) ** 2
+        if v > 0.0:
+            a = math.exp(-dt / float(tau[c]))
+            d = np.full(n, 1.0 + a * a)
+            d[0] = d[-1] = 1.0
+            T = sparse.diags([np.full(n - 1, -a), d, np.full(n - 1, -a)], [-1, 0, 1], format="csr") / (v * (1 - a * a))
+            A, post = (R @ T + sparse.identity(n, format="csr")), T
+        else:
+            A, post = R, None
+        ab = np.zeros((5, n))
+        for k in range(-2, 3):
+            dg = A.diagonal(k)
+            if k >= 0:
+                ab[2 - k, k:] = dg
+            else:
+                ab[2 - k, :n + k] = dg
+        X = solve_banded((2, 2), ab, D)
+        if post is not None:
+            X = post @ X
+        J[np.ix_(use, use)] += D.T @ X
+    return J

@@ -30,11 +30,11 @@ from calib.io import recording
 from calib.io.netcdf import provenance
 from calib.io.atomic import atomic_path, write_json as write_json_atomic, write_text as write_text_atomic
 from calib.sim import effects as sim_effects
-from calib.sim import fisher as sim_fisher
 from calib.sim import calibration_session as sim_session
 from calib.sim import physical as sim_physical
 from calib.sim import truth as sim_truth
 from calib.sim import unmodelled as sim_unmodelled
+from calib.studies import diagnosis_efficiency as proof_efficiency
 from calib.studies.diagnosis_score import registry_name, reported_bounds, score
 from calib.studies.proof_sessions import PROOF_SESSIONS  # the sessions' names, kinds and effects
 from calib.core import seeds
@@ -255,8 +255,9 @@ def _proof_worker(args):
                           physical=injection == "physical")
         infos = None
         if kind == "single" and scale == 1.0:   # what any unbiased estimator could reach (calib.sim.fisher)
-            infos = [sim_fisher.information_for(cfg, eid, params, sim=fsn.sim, clean=fsn.clean_base,
-                                                temperature=fsn.template["temperature"].values)
+            # and what the diagnosis's own window reductions could (calib.studies.diagnosis_efficiency)
+            infos = [proof_efficiency.information_pair(cfg, eid, params, fsn.sim, fsn.clean_base,
+                                                       fsn.template["temperature"].values, fsn.template)
                      for eid, params in (cfg.get("effects") or {}).items()]
         t_build = time.perf_counter() - t0
         # end to end: the simulator's own file through diagnose_recording, scored against its sidecar. Without
@@ -284,10 +285,10 @@ def _proof_worker(args):
         # every size parameter free, and only those the diagnosis estimated free (the others held at their truth:
         # the bound of the model the diagnosis fits)
         fitted = {registry_name(c["name"]) for r in rows for c in r["coverage"]}
-        fisher_bounds = {"all_free": {}, "as_fitted": {}}
-        for J, enames in infos:     # under the names the diagnosis reports (the standard scale factor asymmetry)
-            fisher_bounds["all_free"].update(reported_bounds(sim_fisher.bounds_from(J, enames)))
-            fisher_bounds["as_fitted"].update(reported_bounds(sim_fisher.bounds_from(J, enames, free=fitted)))
+        # under the names the diagnosis reports (the standard scale factor asymmetry); with the bounds of the window
+        # reductions and the Fisher-limited detection scales
+        fisher_bounds = proof_efficiency.proof_bounds(infos, fitted, cfg.get("effects") or {}, st,
+                                                      rename=reported_bounds)
     return {"name": name, "kind": kind, "scale": scale, "rows": rows, "end_to_end": e2e, "fisher": fisher_bounds,
             "t_build_s": t_build, "t_total_s": time.perf_counter() - t0}
 
@@ -378,6 +379,9 @@ def _summarise(res) -> dict:
             by.setdefault(c["name"], []).append(c)
         fb = (res.get("fisher") or {}).get("as_fitted", {})
         fb_all = (res.get("fisher") or {}).get("all_free", {})
+        fb_red = (res.get("fisher") or {}).get("reduced", {})
+        fb_exact = (res.get("fisher") or {}).get("exact", {})
+        effect_id = next(iter(PROOF_SESSIONS[res["name"]][1]), "") if res["name"] in PROOF_SESSIONS else ""
         out["per_parameter"] = {}
         for nm, v in by.items():
             vals = np.array([c["value"] for c in v], float)
@@ -394,6 +398,8 @@ def _summarise(res) -> dict:
                 pp["se_over_bound"] = None if (b is None or pp["mean_se"] is None) else pp["mean_se"] / b
                 pp["std_over_bound"] = None if (b is None or pp["empirical_std"] is None) else pp["empirical_std"] / b
                 pp["rms_error_over_bound"] = None if b is None else pp["rms_error"] / b
+                if nm in fb_red:   # the exact bound, that of the diagnosis's window reductions, why above 2
+                    pp.update(proof_efficiency.reduced_columns(effect_id, nm, pp, fb_exact.get(nm), fb_red[nm]))
             out["per_parameter"][nm] = pp
         ratios = [p["se_over_bound"] for p in out["per_parameter"].values() if p.get("se_over_bound") is not None]
         if ratios:
@@ -667,6 +673,9 @@ def _power_table(results, names):
         tab[nm] = {"points": pts, "smallest_scale_detected_80pct": s80,
                    "injected_at_scale_1": eff,
                    "smallest_magnitude_detected_80pct": _scale_effects(eff, s80) if s80 else None}
+        main = [r for r in results if r["name"] == nm and r["scale"] == 1.0 and r.get("fisher")]
+        if main and "detection" in main[0]["fisher"]:   # what an ideal test at the same threshold could reach
+            tab[nm]["fisher_limited_scale_80pct"] = dict(main[0]["fisher"]["detection"])
     return tab
 
 
@@ -852,6 +861,16 @@ def _proof_csv(summary) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _fisher_limited(p) -> str:
+    """The Fisher-limited detection scales of a power-table entry as a clause of its line ('' without them)."""
+    fl = p.get("fisher_limited_scale_80pct")
+    if not fl:
+        return ""
+    return (f"; Fisher-limited scale (an ideal likelihood-ratio test at the diagnosis's threshold, 80 %): "
+            f"{fmt(fl.get('stream'), 3)} from the sample stream, {fmt(fl.get('reduced'), 3)} from the diagnosis's "
+            "observations")
+
+
 def _proof_md(out) -> str:
     L = ["# Mismatch diagnosis: concealed-effect proof", "",
          f"{out['n_seeds']} noise seeds per session (root seed {out['first_seed']}: the child streams (noise, k), "
@@ -878,28 +897,39 @@ def _proof_md(out) -> str:
             mags = "; ".join(f"{k}={v}" for e in (mag or {}).values() for k, v in e.items()
                              if not is_shape_parameter(k)) if mag else "not reached"
             L.append(f"- {nm}: scale {fmt(p['smallest_scale_detected_80pct'], 3)} -> {mags} "
-                     f"(scale: detected/n = {pts})")
+                     f"(scale: detected/n = {pts})" + _fisher_limited(p))
         L.append("")
     eff = [s for s in out["sessions"] if s.get("per_parameter") and any(
         "fisher_bound" in p for p in s["per_parameter"].values())]
     if eff:
         L += ["## Efficiency: standard errors against the Fisher bound of the generative model", "",
               "The bound is computed from the simulator's noise and the physical path's derivatives "
-              "(calib.sim.fisher), without the diagnosis; 'as fitted' holds the parameters the diagnosis does not "
-              "estimate at their truth, 'all free' estimates every size parameter of the effect. A ratio below 1 "
-              "would be an overconfident standard error; far above 1, information the diagnosis leaves unused.", "",
+              "(calib.sim.fisher), without the diagnosis, by Whittle's approximation; 'as fitted' holds the parameters "
+              "the diagnosis does not estimate at their truth, 'all free' estimates every size parameter of the effect "
+              "(a warm-up's time constant is free in both: the diagnosis profiles it). 'exact': the stream's bound as "
+              "fitted with the noise's exact covariance (Whittle's periodic form overstates the information of effects "
+              "as slow as the session). The bound of the diagnosis's observations: that of its window reductions "
+              "(static means, whole-revolution rotation means and gyro harmonics, exact covariance; "
+              "calib.studies.diagnosis_efficiency), as fitted: its ratio to the exact bound is the information the "
+              "reduction leaves out, the spread over it the estimator's own inefficiency. A ratio below 1 would be an "
+              "overconfident standard error.", "",
               "| session | parameter | truth | Fisher bound as fitted / all free | mean se | se / bound | "
-              "std of estimates / bound | n |", "|---|---|---|---|---|---|---|---|"]
+              "std of estimates / bound | exact bound | se / exact | bound of the diagnosis's observations | "
+              "std / that bound | n | why above 2 |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for s in eff:
             for nm, p in s["per_parameter"].items():
                 if "fisher_bound" not in p:
                     continue
                 L.append(f"| {s['session']} | {nm} | {p['truth']:.4g} | {fmt(p['fisher_bound'], 3)} / "
                          f"{fmt(p.get('fisher_bound_all_free'), 3)} | {fmt(p['mean_se'], 3)} | "
-                         f"{fmt(p.get('se_over_bound'), 3)} | {fmt(p.get('std_over_bound'), 3)} | {p['n']} |")
+                         f"{fmt(p.get('se_over_bound'), 3)} | {fmt(p.get('std_over_bound'), 3)} | "
+                         f"{fmt(p.get('fisher_bound_exact'), 3)} | {fmt(p.get('se_over_exact_bound'), 3)} | "
+                         f"{fmt(p.get('fisher_bound_reduced'), 3)} | {fmt(p.get('std_over_reduced_bound'), 3)} | "
+                         f"{p['n']} | {p.get('why_above_2') or ''} |")
             if s.get("not_estimated"):
                 L.append(f"| {s['session']} | not estimated by the diagnosis: {', '.join(s['not_estimated'])} "
-                         "| | | | | | |")
+                         "| | | | | | | | | | | |")
         L.append("")
     L += ["## Gate", "",
           "Every claim tested by the seeds at the 1 % level (calib.studies.diagnosis_proof.gate); a rejected claim "
