@@ -140,10 +140,11 @@ def bench_session(name, seeds, noise_record, workdir):
 
 
 def bench_cli(recording, noise_record, out, reps=3):
-    """Wall and CPU times of ``python -m calib.cli diagnose`` (a new process each: start-up, reading and checking
-    the files, the whole diagnosis with its library, and the figures), with and without figures and with and
-    without the noise record; the runs of one repetition are interleaved, so that a change of the machine's load
-    falls on every row alike. The CPU time (user + system) is the steadier number on a shared machine."""
+    """``(rows, load)``: wall and CPU times of ``python -m calib.cli diagnose`` (a new process each: start-up,
+    reading and checking the files, the whole diagnosis with its library, and the figures), with and without figures
+    and with and without the noise record; the runs of one repetition are interleaved, so that a change of the
+    machine's load falls on every row alike. The CPU time (user + system) is the steadier number on a shared
+    machine; ``load`` is the 1-minute load average before the runs."""
     (out / "nofig.json").write_text('{"figures": false}')
     variants = [([], "default (figures), no noise record", ""),
                 (["--settings", str(out / "nofig.json")], "figures off, no noise record", "--settings nofig.json"),
@@ -151,6 +152,7 @@ def bench_cli(recording, noise_record, out, reps=3):
                 (["--noise-record", str(noise_record), "--settings", str(out / "nofig.json")],
                  "figures off, noise record", "--noise-record NR --settings nofig.json")]
     base = [PY, "-m", "calib.cli", "diagnose", str(recording), "--out", str(out / "diag"), "--force"]
+    load = os.getloadavg()[0]
     for extra, _, _ in variants:   # not timed: byte code and numba's cache written, the files in the page cache
         subprocess.run(base + extra, cwd=ROOT, capture_output=True)
     walls = {label: [] for _, label, _ in variants}
@@ -179,7 +181,7 @@ def bench_cli(recording, noise_record, out, reps=3):
         r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpus.append(r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime)
     rows.append(("start-up only", 'python -c "import calib.cli, calib.diagnosis"', walls, cpus))
-    return rows
+    return rows, load
 
 
 def bytecode_state() -> str:
@@ -257,11 +259,13 @@ def _template(name, workdir) -> Path:
 
 
 def _print_cli(cli, name):
+    rows, load = cli
     print(f"\n## `calib diagnose` wall time (fresh process; file: {name} template recording; "
-          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs at the end; {bytecode_state()})\n")
+          f"load average {load:.2f} before and {os.getloadavg()[0]:.2f} after the runs on {os.cpu_count()} CPUs; "
+          f"{bytecode_state()})\n")
     print("| run | command | wall min [s] | wall median [s] | CPU median [s] |")
     print("|---|---|---|---|---|")
-    for label, cmd, walls, cpus in cli:
+    for label, cmd, walls, cpus in rows:
         print(f"| {label} | `{cmd}` | {min(walls):.2f} | {statistics.median(walls):.2f} | "
               f"{statistics.median(cpus):.2f} |")
 
