@@ -160,3 +160,25 @@ def test_why_above_2_names_the_reduction_loss_and_the_fit():
     assert "1.1 x the stream's" in txt and "unused" in txt
     txt = de.why_above_2("bias_drift", "accel_warmup_ug[x]", 2.2, 1.0, 2.0, 2.1, 1.05)
     assert "2 x Whittle's" in txt and "1.05 x the stream's" in txt
+
+
+def test_extended_windows_cover_every_sample_once():
+    """The extended reduction: the diagnosis's windows and short means of every sample outside them, each sample in
+    exactly one window, in time order."""
+    n, dt = 300, 0.1
+    geom = _windows(n)
+    geom.n_samples, geom.dt = n, dt
+    ext = de.extended_windows(geom, mean_s=0.5)
+    count = np.zeros(n, int)
+    for w in ext.windows:
+        count[w.i0:w.i1] += 1
+        assert w.W.shape[0] == w.n
+        if w.kind == "outside":
+            assert w.n <= 5 and np.allclose(w.W, 1.0 / w.n)
+    assert np.all(count == 1)
+    assert [w.i0 for w in ext.windows] == sorted(w.i0 for w in ext.windows)
+
+
+def test_why_above_2_says_what_the_outside_samples_would_bring():
+    txt = de.why_above_2("time_offset", "offset_s", 1000.0, 1e-7, 1e-7, 1e-4, 1.0, extended=1.02e-7)
+    assert "0.5-s means would bring it to 1.02 x" in txt

@@ -27,12 +27,13 @@ from __future__ import annotations
 
 import copy
 import math
+from types import SimpleNamespace
 
 import numpy as np
 from scipy import signal as sp_signal
 from scipy import stats
 
-from calib.diagnosis.geometry import SENSORS, build_geometry, rows_of
+from calib.diagnosis.geometry import SENSORS, Window, build_geometry, rows_of
 from calib.sim import effects as sim_effects
 from calib.sim import fisher as sim_fisher
 from calib.sim import physical as sim_physical
@@ -42,6 +43,9 @@ from calib.sim.counts_engine import noise_terms
 PROFILED_SHAPES = {"bias_drift": ("accel_tau_s", "gyro_tau_s")}
 #: relative step of the central differences of a profiled shape parameter
 _SHAPE_STEP = 1e-3
+#: the length [s] of the means of the samples outside every window in the extended reduction
+#: (:func:`extended_windows`): short against a spin-up, a spin-down or a 45 deg move (a few seconds each)
+OUTSIDE_MEAN_S = 0.5
 #: the spread of the estimates over the stream's bound above which the proof says why
 RATIO_LIMIT = 2.0
 #: the detection power of the Fisher-limited detection scale (as the proof's empirical one)
@@ -137,20 +141,43 @@ def reduced_information(cols, sim, geom, n_effect: int | None = None) -> np.ndar
     return J
 
 
+def extended_windows(geom, mean_s: float = OUTSIDE_MEAN_S):
+    """The diagnosis's windows and, for every run of samples outside them (the moves between static positions, the
+    spin-up and spin-down ramps, partial revolutions, the trimmed ends), consecutive means of ``mean_s`` seconds:
+    the reduction an estimator that also used those samples would fit (an object with ``windows`` in time order,
+    for :func:`reduced_information`)."""
+    L = max(2, int(round(mean_s / geom.dt)))
+    inside = np.zeros(geom.n_samples, bool)
+    for w in geom.windows:
+        inside[w.i0:w.i1] = True
+    out = list(geom.windows)
+    idx = np.flatnonzero(~inside)
+    for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1) if idx.size else []:
+        for a in range(0, run.size, L):
+            part = run[a:a + L]
+            w = Window("outside", "", -1, int(part[0]), int(part[-1]) + 1)
+            w.W = np.full((part.size, 1), 1.0 / part.size)
+            out.append(w)
+    return SimpleNamespace(windows=sorted(out, key=lambda w: w.i0))
+
+
 def information_pair(cfg: dict, effect_id: str, params: dict | None, sim, clean, temperature, template) -> dict:
     """The stream's (Whittle's approximation, :func:`calib.sim.fisher.information`, and the exact covariance,
     :func:`calib.sim.fisher.information_exact`) and the window reductions' Fisher information about effect ``effect_id`` of session ``cfg``
     (its simulator ``sim``, noise-free increments ``clean`` without the effect, recorded ``temperature``; the
     diagnosis's windows from the session's recording ``template``). Returns ``{"names", "stream", "exact",
-    "reduced", "n_obs", "shapes"}``: the effect's parameter names (a profiled shape parameter last) and the three
-    informations with the 24 base parameters after them (``exact`` and ``reduced`` None for a random-walk bias), the number of the diagnosis's observations, the shape parameters
+    "reduced", "extended", "n_obs", "shapes"}``: the effect's parameter names (a profiled shape parameter last) and
+    the informations with the 24 base parameters after them (``extended``: the windows and the samples outside them
+    as :data:`OUTSIDE_MEAN_S` means, :func:`extended_windows`; all but ``stream`` None for a random-walk bias), the number of the diagnosis's observations, the shape parameters
     among the names."""
     enames, ecols, ncols = _columns(cfg, sim, clean, effect_id, params or {}, temperature)
     geom = build_geometry(template)
     return {"names": enames,
             "stream": sim_fisher.information(ecols + ncols, sim_fisher.noise_spectrum(sim, len(clean))),
             "exact": sim_fisher.information_exact(ecols + ncols, sim),
-            "reduced": reduced_information(ecols + ncols, sim, geom, len(ecols)), "n_obs": int(geom.obs["n"]),
+            "reduced": reduced_information(ecols + ncols, sim, geom, len(ecols)),
+            "extended": reduced_information(ecols + ncols, sim, extended_windows(geom), len(ecols)),
+            "n_obs": int(geom.obs["n"]),
             "shapes": [nm for nm in enames if nm in PROFILED_SHAPES.get(effect_id, ())]}
 
 
@@ -161,7 +188,7 @@ def bounds_pair(info: dict, free=None) -> dict:
     fr = None if free is None else set(free) | set(info["shapes"])
     return {k: {} if info[k] is None else
             {nm: b for nm, b in sim_fisher.bounds_from(info[k], info["names"], free=fr).items()
-             if nm not in info["shapes"]} for k in ("stream", "exact", "reduced")}
+             if nm not in info["shapes"]} for k in ("stream", "exact", "reduced", "extended")}
 
 
 def fisher_detection_scale(J: np.ndarray, names: list, truth: dict, n_obs: int, alpha: float, min_delta_bic: float,
@@ -226,11 +253,12 @@ _LEFT_OUT = {
 
 
 def why_above_2(effect_id: str, name: str, std_over_stream: float | None, stream, exact, reduced,
-                std_over_reduced: float | None) -> str | None:
+                std_over_reduced: float | None, extended=None) -> str | None:
     """Why the spread of the estimates of parameter ``name`` exceeds :data:`RATIO_LIMIT` times the stream's Fisher
     bound ``stream`` (Whittle's approximation), in numbers: how far the exact covariance raises the stream's bound
     (``exact / stream``), the part lost by the reduction to windows (``reduced / exact``, with what the windows
-    leave out) and the estimator's own part (``std / reduced``). None when it does not exceed the limit."""
+    leave out, and where ``extended`` -- the bound with the samples outside the windows as short means -- would
+    bring it) and the estimator's own part (``std / reduced``). None when it does not exceed the limit."""
     if std_over_stream is None or not std_over_stream > RATIO_LIMIT:
         return None
     parts = []
@@ -248,6 +276,9 @@ def why_above_2(effect_id: str, name: str, std_over_stream: float | None, stream
         txt = f"the window reductions' bound is {loss:.3g} x the stream's"
         if loss > 1.5 and key in _LEFT_OUT:
             txt += f" ({_LEFT_OUT[key]})"
+        if loss > 1.5 and extended:
+            txt += (f"; the samples outside the windows as {OUTSIDE_MEAN_S:g}-s means would bring it to "
+                    f"{extended / ref:.3g} x")
         parts.append(txt)
     if std_over_reduced is not None:
         parts.append(f"the estimates spread {std_over_reduced:.3g} x the reductions' bound"
@@ -271,7 +302,7 @@ def proof_bounds(infos: list, fitted: set, effects: dict, settings: dict, rename
     as fitted) -- each renamed by ``rename`` to the names the diagnosis reports -- and ``detection``: the
     Fisher-limited detection scale (:func:`fisher_detection_scale`, with ``settings``' ``alpha`` and
     ``min_delta_bic``) of the stream (exact covariance) and of the reductions, as fitted."""
-    out = {"all_free": {}, "as_fitted": {}, "exact": {}, "reduced": {},
+    out = {"all_free": {}, "as_fitted": {}, "exact": {}, "reduced": {}, "extended": {},
            "detection": {"stream": None, "reduced": None}}
     for info, (eid, params) in zip(infos, effects.items()):
         allf, asf = bounds_pair(info), bounds_pair(info, free=fitted)
@@ -279,6 +310,7 @@ def proof_bounds(infos: list, fitted: set, effects: dict, settings: dict, rename
         out["as_fitted"].update(rename(asf["stream"]))
         out["exact"].update(rename(asf["exact"]))
         out["reduced"].update(rename(asf["reduced"]))
+        out["extended"].update(rename(asf["extended"]))
         if len(infos) == 1:
             truth = {nm: v for nm, v in _truth_values(eid, params).items() if nm in fitted}
             for k in ("exact", "reduced"):
@@ -291,9 +323,9 @@ def proof_bounds(infos: list, fitted: set, effects: dict, settings: dict, rename
     return out
 
 
-def reduced_columns(effect_id: str, name: str, pp: dict, exact, reduced) -> dict:
-    """The proof's per-parameter entries of the exact stream bound ``exact`` and the window reductions' bound
-    ``reduced`` of parameter ``name`` whose summary ``pp`` holds ``fisher_bound`` (Whittle's), ``empirical_std``,
+def reduced_columns(effect_id: str, name: str, pp: dict, exact, reduced, extended=None) -> dict:
+    """The proof's per-parameter entries of the exact stream bound ``exact``, the window reductions' bound
+    ``reduced`` and the extended reduction's ``extended`` (:func:`extended_windows`) of parameter ``name`` whose summary ``pp`` holds ``fisher_bound`` (Whittle's), ``empirical_std``,
     ``mean_se`` and ``rms_error``: the bounds, the spread, the standard error and the rms error over them, and
     :func:`why_above_2`."""
     b, sd, rms, se = pp.get("fisher_bound"), pp.get("empirical_std"), pp.get("rms_error"), pp.get("mean_se")
@@ -302,4 +334,6 @@ def reduced_columns(effect_id: str, name: str, pp: dict, exact, reduced) -> dict
     return {"fisher_bound_exact": exact, "se_over_exact_bound": over(se, exact),
             "std_over_exact_bound": over(sd, exact), "fisher_bound_reduced": reduced,
             "std_over_reduced_bound": std_red, "rms_error_over_reduced_bound": over(rms, reduced),
-            "why_above_2": why_above_2(effect_id, name, pp.get("std_over_bound"), b, exact, reduced, std_red)}
+            "fisher_bound_extended": extended,
+            "why_above_2": why_above_2(effect_id, name, pp.get("std_over_bound"), b, exact, reduced, std_red,
+                                       extended)}

@@ -381,6 +381,7 @@ def _summarise(res) -> dict:
         fb_all = (res.get("fisher") or {}).get("all_free", {})
         fb_red = (res.get("fisher") or {}).get("reduced", {})
         fb_exact = (res.get("fisher") or {}).get("exact", {})
+        fb_ext = (res.get("fisher") or {}).get("extended", {})
         effect_id = next(iter(PROOF_SESSIONS[res["name"]][1]), "") if res["name"] in PROOF_SESSIONS else ""
         out["per_parameter"] = {}
         for nm, v in by.items():
@@ -399,7 +400,8 @@ def _summarise(res) -> dict:
                 pp["std_over_bound"] = None if (b is None or pp["empirical_std"] is None) else pp["empirical_std"] / b
                 pp["rms_error_over_bound"] = None if b is None else pp["rms_error"] / b
                 if nm in fb_red:   # the exact bound, that of the diagnosis's window reductions, why above 2
-                    pp.update(proof_efficiency.reduced_columns(effect_id, nm, pp, fb_exact.get(nm), fb_red[nm]))
+                    pp.update(proof_efficiency.reduced_columns(effect_id, nm, pp, fb_exact.get(nm), fb_red[nm],
+                                                               fb_ext.get(nm)))
             out["per_parameter"][nm] = pp
         ratios = [p["se_over_bound"] for p in out["per_parameter"].values() if p.get("se_over_bound") is not None]
         if ratios:
