@@ -41,9 +41,9 @@ def cmd_diagnose(a):
 def _load_long_lived(*modules) -> None:
     """Import ``modules`` with the cyclic garbage collector paused, then freeze every object alive
     (:func:`gc.freeze`): the ~120 000 objects of numpy, scipy, netCDF, numba and matplotlib live as long as the
-    process. Without it the collector walks them in full passes during and after the imports -- finding nothing --
-    for 0.2-0.35 s of a cold ``calib diagnose`` (measured with gc.callbacks on a Liu-2021 null session: 0.36-0.42 s
-    of collection against 0.06-0.09 s). The collector keeps collecting everything made after the freeze."""
+    process. Without it the collector walks them in full passes during and after the imports, finding nothing:
+    0.26-0.55 s of collection in a cold ``calib diagnose`` of a Liu-2021 null session (gc.callbacks; the more the
+    machine is loaded, the more), 0.05-0.07 s with it. The collector keeps collecting everything made afterwards."""
     enabled = gc.isenabled()
     gc.disable()
     try:
