@@ -173,7 +173,9 @@ def information_pair(cfg: dict, effect_id: str, params: dict | None, sim, clean,
     enames, ecols, ncols = _columns(cfg, sim, clean, effect_id, params or {}, temperature)
     geom = build_geometry(template)
     return {"names": enames,
-            "stream": sim_fisher.information(ecols + ncols, sim_fisher.noise_spectrum(sim, len(clean))),
+            # Whittle's, as calib.sim.fisher.information_for computes it (its base columns' spectra kept per session)
+            "stream": sim_fisher.information(ecols, sim_fisher.noise_spectrum(sim, len(clean)),
+                                             fixed=sim_fisher._nuisance_spectra(sim, clean)),
             "exact": sim_fisher.information_exact(ecols + ncols, sim),
             "reduced": reduced_information(ecols + ncols, sim, geom, len(ecols)),
             "extended": reduced_information(ecols + ncols, sim, extended_windows(geom), len(ecols)),
