@@ -37,14 +37,17 @@ def _files(folder: Path) -> dict:
 def test_proof_gathered_from_session_and_scan_jobs_equals_one_run(tmp_path):
     """A null session and a single effect with its power scan (two seeds each), each session a job of its own (the
     scan from the session's result; the second session reads its seeds' noise from the store the first wrote),
-    then gathered in another order: every product the same as the one-process stage."""
+    then gathered in another order: every product the same as the one-process stage. Two seeds of a 20-s dwell
+    cannot hold the proof's claims (the gate's pooled coverage alone needs 50 intervals: tests/diagnosis/
+    test_proof_gate.py), so the gate reports here without failing the stage: this test is about the products."""
     names = ["null_a", "time_offset"]
     assert proof_sessions.session_names([]) == list(proof_sessions.PROOF_SESSIONS)
     assert proof_sessions.session_names(names) == names
     prov = provenance("diagnosis_proof", {"n_seeds": 2}, seed=7)
     one = tmp_path / "one"
     diagnosis_study.proof_stage(one, n_seeds=2, first_seed=7, sessions=names, power_seeds=2, workers=1, base=SHORT,
-                                site=SITE, prov=prov, metrics_path=one / "proof.metrics.json", log=lambda *a: None)
+                                site=SITE, prov=prov, metrics_path=one / "proof.metrics.json", log=lambda *a: None,
+                                enforce=False)
 
     parts, gathered = tmp_path / "parts", tmp_path / "gathered"
     store = tmp_path / "noise"
@@ -58,7 +61,7 @@ def test_proof_gathered_from_session_and_scan_jobs_equals_one_run(tmp_path):
     assert len(list(store.glob("*.npy"))) == 5 and not list(store.glob("*.part"))
     diagnosis_study.proof_gather_stage(gathered, [parts / nm for nm in reversed(names)], 2, 7, sessions=names,
                                        power_seeds=2, prov=prov, metrics_path=gathered / "proof.metrics.json",
-                                       log=lambda *a: None)
+                                       log=lambda *a: None, enforce=False)
     a, b = _files(one), _files(gathered)
     assert sorted(a) == sorted(b)
     assert {"proof.json", "proof.csv", "proof.md", "power.csv", "power.png", "proof_rows.json",
