@@ -14,7 +14,7 @@ import pytest
 
 from calib import diagnosis as dg
 from calib.core.distributions import chi2_ppf
-from calib.diagnosis.adequacy import record_minutes_needed
+from calib.diagnosis.adequacy import record_minutes_needed, slow_avar
 from calib.signal import allan
 from calib.studies.diagnosis_proof import FastSession
 
@@ -100,6 +100,19 @@ def test_record_length_is_where_the_lower_allan_band_clears_the_fast_noise(ratio
     if L > 2.0 * tau * 1.01:
         assert lower(0.99 * L) < af
     assert np.isinf(record_minutes_needed(fs, [tau], [af], [0.0]))
+
+
+def test_record_length_over_many_taus_is_the_shortest_of_each_tau_alone():
+    """The record decides when any tau of the segment layout shows the slow noise: the answer over many taus is the
+    shortest of the answers for each tau alone (taus without slow noise, or never shown below 1e8 s, add nothing)."""
+    fs = 100.0
+    taus = np.geomspace(2.0, 6000.0, 48)
+    af = 3.0 * 0.01**2 / taus**2 + 0.3**2 / taus
+    asl = slow_avar(taus, 300.0, 0.05)   # a Gauss-Markov bias (sigma 0.05, Tc 300 s), as the accelerometers'
+    asl[:5] = 0.0
+    alone = [record_minutes_needed(fs, [t], [a], [b]) for t, a, b in zip(taus, af, asl)]
+    assert record_minutes_needed(fs, taus, af, asl) == min(alone)
+    assert np.isfinite(min(alone)) and sum(np.isfinite(alone)) > 10
 
 
 # --------------------------------------------------------------------------- the field's definition of asymmetry

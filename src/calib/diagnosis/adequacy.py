@@ -61,7 +61,16 @@ def subset_masks(prob: Problem) -> dict:
 
 
 def _groups(prob: Problem):
-    """(name, description dict, boolean mask) of every subset tested."""
+    """(name, description dict, boolean mask) of every subset tested (computed once per problem: they depend on
+    its observations only, and the adequacy family runs many times on one problem)."""
+    cached = prob.__dict__.get("_adequacy_groups")
+    if cached is None:
+        cached = prob.__dict__["_adequacy_groups"] = _subsets(prob)
+    return cached
+
+
+def _subsets(prob: Problem):
+    """:func:`_groups`, computed."""
     g, o = prob.geom, prob.geom.obs
     n = prob.n
     out = [("all", {"scope": "all"}, np.ones(n, bool))]
@@ -183,31 +192,40 @@ def record_minutes_needed(fs: float, taus, avar_fast, avar_slow) -> float:
     above the Allan variance ``avar_fast`` of the noise without it. The band is the chi-square interval of the
     overlapping Allan variance with the equivalent degrees of freedom of :func:`calib.signal.allan.edf_white` (as
     the record's own Allan deviation is computed); the record reaches tau at half its length."""
-    best = math.inf
-    for tau, af, asl in zip(np.asarray(taus, float), np.asarray(avar_fast, float), np.asarray(avar_slow, float)):
-        if not asl > 0:
-            continue
-        need = af / (af + asl)          # lower band / true variance must exceed this
+    tau, af, asl = (np.asarray(v, float) for v in (taus, avar_fast, avar_slow))
+    keep = asl > 0
+    if not keep.any():
+        return math.inf
+    tau, af, asl = tau[keep], af[keep], asl[keep]
+    need = af / (af + asl)              # lower band / true variance must exceed this
+    m = np.maximum(tau * fs, 1.0)
 
-        def shows(length_s):
-            edf = float(allan.edf_white(length_s * fs + 1.0, max(tau * fs, 1.0)))
-            return edf / float(chi2_ppf(0.975, edf)) >= need
+    def shows(length_s, idx):           # every tau at once: the same numbers as one tau at a time
+        edf = allan.edf_white(length_s * fs + 1.0, m[idx])
+        return edf / chi2_ppf(0.975, edf) >= need[idx]
 
-        lo = 2.0 * tau
-        if shows(lo):
-            best = min(best, lo)
-            continue
-        hi = lo
-        while not shows(hi):
-            hi *= 2.0
-            if hi > 1e8:
-                break
-        else:
-            for _ in range(40):
-                mid = 0.5 * (lo + hi)
-                lo, hi = (lo, mid) if shows(mid) else (mid, hi)
-            best = min(best, hi)
-    return best / 60.0
+    every = np.arange(tau.size)
+    lo = 2.0 * tau                       # the record reaches tau at half its length
+    result = np.full(tau.size, math.inf)
+    at_lo = shows(lo, every)
+    result[at_lo] = lo[at_lo]
+    hi = lo.copy()
+    pending, bracketed = ~at_lo, np.zeros(tau.size, bool)
+    while pending.any():                 # double until the record shows it (none beyond 1e8 s)
+        hi[pending] *= 2.0
+        pending &= ~(hi > 1e8)
+        idx = np.flatnonzero(pending)
+        hit = idx[shows(hi[idx], idx)]
+        bracketed[hit] = True
+        pending[hit] = False
+    idx = np.flatnonzero(bracketed)
+    a, b = lo[idx], hi[idx]
+    for _ in range(40):                  # bisection between 2 tau and the first length that shows it
+        mid = 0.5 * (a + b)
+        ok = shows(mid, idx)
+        a, b = np.where(ok, a, mid), np.where(ok, mid, b)
+    result[idx] = b
+    return float(result.min()) / 60.0
 
 
 def segment_lags(prob: Problem) -> np.ndarray:
