@@ -49,6 +49,15 @@ def test_no_process_words_in_product_text():
     assert not hits, "\n".join(hits)
 
 
+def test_no_placeholders_in_the_user_documents():
+    """A number a user reads is measured or absent: no TODO / TBD placeholder in the README or the docs."""
+    pattern = re.compile(r"\bTODO\b|\bTBD\b|TODO-NUMBER")
+    pages = [ROOT / "README.md", ROOT / "config" / "README.md", *sorted(DOCS.rglob("*.md"))]
+    hits = [f"{p.relative_to(ROOT)}:{i}: {line.strip()}" for p in pages
+            for i, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not hits, "\n".join(hits)
+
+
 def test_every_doc_page_is_in_the_navigation():
     nav = (ROOT / "mkdocs.yml").read_text()
     pages = [p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md")]
