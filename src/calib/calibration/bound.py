@@ -46,6 +46,7 @@ import numpy as np
 import scipy.linalg
 
 from calib.calibration import objectives as ob
+from calib.core.information import seen_inverse
 from calib.core.triad import PARAM_NAMES
 
 #: eigenvalues of the unit-diagonal information below this share of the largest are structural null directions
@@ -159,13 +160,9 @@ def information(M, observations, observe: str) -> np.ndarray:
 
 def _null_and_inverse(F):
     """(null (12, k) in unit-diagonal coordinates, pseudo-inverse of F on the seen combinations, scale)."""
-    s = np.sqrt(np.clip(np.diag(F), 0.0, None))
-    s = np.maximum(s, 1e-8 * s.max())   # a parameter the data do not touch at all: its column is zero whatever s
-    Fs = F / np.outer(s, s)
-    lam, V = np.linalg.eigh(Fs)
-    good = lam >= NULL_TOL * lam.max()
-    inv = (V[:, good] / lam[good]) @ V[:, good].T / np.outer(s, s)
-    return V[:, ~good], inv, s
+    # a parameter the data do not touch at all keeps a scale of 1e-8 of the largest: its column is zero whatever s
+    null, inv, s = seen_inverse(F, NULL_TOL, rel_floor=1e-8)
+    return null, inv / np.outer(s, s), s
 
 
 def gauge_jacobian(M, b, form: str):

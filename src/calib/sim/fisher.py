@@ -39,6 +39,7 @@ import numpy as np
 from scipy import sparse
 from scipy.linalg import solve_banded
 
+from calib.core.information import seen_inverse
 from calib.sim import effects as sim_effects
 from calib.sim import physical
 from calib.sim.calibration_session import build_calibration_simulator
@@ -270,12 +271,7 @@ def bounds_from(J: np.ndarray, enames: list, free=None, null_tol: float = 1e-9) 
     keep = [k for k, nm in enumerate(enames) if free is None or nm in free]
     idx = keep + list(range(len(enames), J.shape[0]))
     Jk = J[np.ix_(idx, idx)]
-    s = np.sqrt(np.clip(np.diag(Jk), 1e-300, None))
-    Js = Jk / np.outer(s, s)
-    lam, V = np.linalg.eigh(Js)
-    good = lam >= null_tol * lam.max()
-    null = V[:, ~good]
-    inv = (V[:, good] / lam[good]) @ V[:, good].T
+    null, inv, s = seen_inverse(Jk, null_tol, var_floor=1e-300)
     out = {}
     for r, k in enumerate(keep):
         if null.size and np.linalg.norm(null[r]) > 1e-6:
