@@ -846,8 +846,8 @@ def inefficient_listed(summary) -> list[str]:
     them (:func:`efficiency_groups`) and the proof's reason."""
     out = []
     for s in summary:
-        _, reduced, unjudged = efficiency_groups(s.get("per_parameter") or {})
         pp = s.get("per_parameter") or {}
+        _, reduced, unjudged = efficiency_groups(pp)
         for nm, n, r, why in reduced:
             out.append(f"{s['session']} {nm}: rms error / stream bound {pp[nm]['rms_error_over_bound']:.3g}, / bound "
                        f"of its observations {r:.3g} (n = {n}; gated) -- {why}")
