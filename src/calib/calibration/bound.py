@@ -302,3 +302,97 @@ def efficiency(std, sigma_crb) -> float:
     """Empirical std of the estimates / the bound (NaN where the bound is not finite)."""
     return float(std / sigma_crb) if (sigma_crb is not None and math.isfinite(sigma_crb) and sigma_crb > 0) \
         else math.nan
+
+
+# ----------------------------------------------------------------------------------------------------------
+# the bound beside the default calibration's estimates
+# ----------------------------------------------------------------------------------------------------------
+#: the default calibration's estimators and the observation model of their bound (key = sensor)
+DEFAULT_BOUNDS = {
+    "accel": ("norm", "tri9", "eq. 7 sees only the norm of every static mean: the input directions are unknown "
+                              "(profiled out), the lower-triangular gauge is what the norm determines"),
+    "gyro": ("vector", "paper12", "eq. 25 components and biases: known rotation axes and rates, nominal attitudes "
+                                  "of the static positions, on the + / - rotation and static means"),
+}
+
+#: the noise of the window means the bound uses, by whether the calibration measured a long static record
+NOISE_OF_BOUND = {
+    "measured": "the noise model the default calibration fitted (session's static segments + the long static "
+                "record: white, quantisation and the slow bias, correlated between windows)",
+    "segments": "independent window means with the sigma the default calibration starts from (Allan deviation of "
+                "the session's own static segments at tau = window duration); no slow bias instability (no long "
+                "static record)",
+}
+
+
+def independent_observations(groups, sigmas) -> Observations:
+    """Window groups (:func:`session_groups` order) as independent means with per-window, per-axis std
+    ``sigmas`` (list of (n_g, 3) arrays in the same order) [output unit]: diagonal covariance per axis."""
+    x = np.concatenate([g[0] for g in groups])
+    s = np.concatenate([np.asarray(v, dtype=float) for v in sigmas])
+    cov = np.stack([np.diag(s[:, i] ** 2) for i in range(3)])
+    return Observations(x, cov, np.ones(x.shape[0], bool), " + ".join(g[3] for g in groups))
+
+
+def _estimate_directions(static, M, b):
+    """Inputs of the static positions as the estimate implies them: |input| = the reference, direction
+    M^-1 (mean - b) (for a norm model without nominal attitudes)."""
+    u = np.linalg.solve(np.asarray(M, float), (static.means - np.asarray(b, float)).T).T
+    return static.reference * u / np.linalg.norm(u, axis=1, keepdims=True)
+
+
+def default_bounds(inp, accel_Mb, gyro_Mb, models: dict | None = None) -> dict:
+    """The Cramér–Rao bounds at the default calibration's estimates: ``accel_Mb`` = (K E, b) of the accelerometer
+    estimate in the frame of the inputs used (body frame with nominal attitudes), ``gyro_Mb`` the gyro's (or
+    None), ``inp`` the session's windows (:class:`calib.signal.segments.CalibrationInputs`), ``models``
+    ``{"accel" | "gyro": MeanNoiseModel}`` the measured noise model (None: the windows' own sigmas, independent).
+
+    Returns ``{sensor: (CalibrationBound or None, reason)}``: None with the reason when the windows cannot
+    give the bound (the vector model of the gyros needs the nominal attitudes)."""
+    out = {}
+    noise = "measured" if models is not None else "segments"
+    a = inp.accel_static
+    if a.attitude is not None:
+        groups = session_groups(a)
+        src = "nominal attitudes"
+    else:
+        groups = [(_estimate_directions(a, *accel_Mb), a.t_start_s, a.duration_s, f"{a.n} static positions")]
+        src = "directions implied by the estimate (no nominal attitudes)"
+    obs = (joint_observations(groups, models["accel"]) if models is not None
+           else independent_observations(groups, [a.sigma]))
+    observe, form, _ = DEFAULT_BOUNDS["accel"]
+    out["accel"] = (bound("accel", *accel_Mb, [obs], observe, form), f"{noise}; inputs: {src}")
+    g = inp.gyro_static
+    if gyro_Mb is None or inp.gyro_pairs is None:
+        out["gyro"] = (None, "no gyro estimate (no rotation pairs)")
+    elif g.attitude is None or inp.gyro_pairs.attitude is None:
+        out["gyro"] = (None, "the vector model needs the nominal attitudes of the windows; the recording has none")
+    else:
+        p = inp.gyro_pairs
+        groups = session_groups(g, p)
+        obs = (joint_observations(groups, models["gyro"]) if models is not None
+               else independent_observations(groups, [p.sigma_plus, p.sigma_minus, g.sigma]))
+        observe, form, _ = DEFAULT_BOUNDS["gyro"]
+        out["gyro"] = (bound("gyro", *gyro_Mb, [obs], observe, form), f"{noise}; inputs: nominal")
+    return out
+
+
+def beside_estimates(names, se, found, note: str) -> dict:
+    """The bound beside one triad's estimates: ``names`` / ``se`` (NaN: not determined by the estimate) of the
+    estimate, ``found`` a :class:`CalibrationBound` of the same parameters (or None), ``note`` why there is
+    none. Returns {"sigma_crb": {name: float | None}, "se_over_crb": {name: float | None}, "null_reason":
+    {name: why the entry is None}}: None never stands for a number."""
+    sig, ratio, why = {}, {}, {}
+    for n, s in zip(names, se):
+        if found is None:
+            sig[n], ratio[n], why[n] = None, None, note
+            continue
+        k = found.names.index(n)
+        if not found.determined[k] or not math.isfinite(found.sigma[k]) or found.sigma[k] <= 0:
+            sig[n], ratio[n], why[n] = None, None, found.describe(n)
+            continue
+        sig[n] = float(found.sigma[k])
+        ratio[n] = float(s / found.sigma[k]) if np.isfinite(s) else None
+        if ratio[n] is None:
+            why[n] = "the estimate reports no standard error (not determined by its objective)"
+    return {"sigma_crb": sig, "se_over_crb": ratio, "null_reason": why}

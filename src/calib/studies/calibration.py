@@ -225,7 +225,8 @@ def run_study(recording_path, truth_path, out_dir, ccfg: dict, seed: int, prov=N
     timing["default_calibration_s"] = time.perf_counter() - t
     ident = _identifiability(inp, runs, default)
     write_text(out / "identifiability.json", json.dumps(ident, indent=2))
-    write_default(default, out / "default_calibration.json", out / "default_calibration.nc", prov, true_vec)
+    write_default(default, out / "default_calibration.json", out / "default_calibration.nc", prov, true_vec,
+                  bound=default_bound(inp, default, noise))
     write_text(out / "timings.csv", "quantity,seconds\n" + "".join(f"{k},{v:.4f}\n" for k, v in timing.items()))
     metrics = {"success_pct": {f"{k[0]}.{k[1]}": v for k, v in success.items()},
                "mean_L": {f"{k[0]}.{k[1]}": float(np.mean(v[1])) for k, v in runs.items()},
@@ -414,7 +415,39 @@ def _inflate_by_scatter(res):
     return res
 
 
-def write_default(default, json_path, nc_path, prov, true_vec):
+def default_bound(inp, default, noise: dict | None) -> dict:
+    """The Cramér–Rao bound at the default calibration's estimates (:func:`calib.calibration.bound.default_bounds`)
+    for the session's windows ``inp`` and the noise the calibration used: ``noise`` (:func:`noise_models`, the
+    measured model with the slow bias) or, without a long static record, the windows' own independent sigmas.
+    Returns ``{sensor: {"block": what the bound is, "sigma_crb", "se_over_crb", "null_reason"}}`` (None for a
+    sensor without an estimate)."""
+    acc, gyro = default["accel"], default["gyro"]
+    vec_a, _ = acc.paper_form(default["accel_reference"])
+    found = calbound.default_bounds(inp, ob.Form("paper12").KE_b(vec_a),
+                                    None if gyro is None else (gyro.KE, gyro.b), noise)
+    out = {}
+    for sensor, res in (("accel", acc), ("gyro", gyro)):
+        if res is None:
+            out[sensor] = None
+            continue
+        b, how = found[sensor]
+        observe, form, of = calbound.DEFAULT_BOUNDS[sensor]
+        noise_key, _, inputs = how.partition("; inputs: ")
+        block = {"observe": observe, "form": form, "of": of,
+                 "noise": calbound.NOISE_OF_BOUND.get(noise_key, noise_key), "inputs": inputs or None,
+                 "windows": None if b is None else b.n_windows,
+                 "evaluated_at": "the default calibration's estimate (not the truth)"}
+        if b is None:
+            block["not_available"] = how
+        out[sensor] = {"block": block, **calbound.beside_estimates(res.names, res.se, b, how)}
+    return out
+
+
+def write_default(default, json_path, nc_path, prov, true_vec, bound: dict | None = None):
+    """``default_calibration.json`` and ``.nc`` of :func:`default_calibration`; ``bound``
+    (:func:`default_bound`): the Cramér–Rao bound beside every estimate (``sigma_crb``, ``se_over_crb`` = the
+    reported standard error / the bound, and the ``bound`` block of each sensor; None with its reason where the
+    data do not determine a parameter)."""
     acc, gyro, ref = default["accel"], default["gyro"], default["accel_reference"]
     vec_a, R = acc.paper_form(ref)
     out = {"frame": default["frame_note"], "noise": default.get("noise_note"),
@@ -431,6 +464,10 @@ def write_default(default, json_path, nc_path, prov, true_vec):
     if gyro is not None and true_vec["gyro"] is not None:
         out["gyro_error"] = dict(zip(PARAM_NAMES, map(float, gyro.paper_vector() - true_vec["gyro"])))
         out["gyro_z"] = dict(zip(gyro.names, map(float, (gyro.x - _match(gyro, true_vec["gyro"])) / gyro.se)))
+    for sensor, b in (bound or {}).items():
+        if b is not None and out.get(sensor) is not None:
+            out[sensor].update(sigma_crb=b["sigma_crb"], se_over_crb=b["se_over_crb"],
+                               bound={**b["block"], "null_reason": b["null_reason"]})
     write_text(json_path, json.dumps(out, indent=2))
     coords = {"parameter": list(PARAM_NAMES)}
     data = {"accel": (("parameter",), vec_a, {"long_name": "accelerometer K, E, b in the body frame"}),
@@ -439,6 +476,25 @@ def write_default(default, json_path, nc_path, prov, true_vec):
     if gyro is not None:
         data["gyro"] = (("parameter",), gyro.paper_vector(), {"long_name": "gyro K, E, b (eq. 25), body frame"})
         data["gyro_cov"] = (("q1", "q2"), gyro.cov, {"long_name": "covariance of the gyro parameters"})
+    for sensor, res in (("accel", acc), ("gyro", gyro)):
+        b = (bound or {}).get(sensor)
+        if b is None or res is None:
+            continue
+        dim = "parameter" if tuple(res.names) == tuple(PARAM_NAMES) else f"{sensor}_{res.form}_parameter"
+        if dim != "parameter":
+            coords[dim] = list(res.names)
+        units = "count s-1 per g" if sensor == "accel" else "count s-1 per deg/h"
+        nd = "; ".join(f"{n}: {r}" for n, r in b["null_reason"].items())
+        common = {"observe": b["block"]["observe"], "noise": b["block"]["noise"],
+                  "not_determined": nd or "none (NaN only where a reason is given here)"}
+        data[f"{sensor}_sigma_crb"] = ((dim,), [np.nan if b["sigma_crb"][n] is None else b["sigma_crb"][n]
+                                                for n in res.names],
+                                       {"long_name": f"Cramer-Rao bound of the {sensor} parameters ({res.form}) at "
+                                                     "the estimate", "units": f"{units} (K, b); 1 (E)", **common})
+        data[f"{sensor}_se_over_crb"] = ((dim,), [np.nan if b["se_over_crb"][n] is None else b["se_over_crb"][n]
+                                                  for n in res.names],
+                                         {"long_name": f"reported standard error / Cramer-Rao bound of the {sensor} "
+                                                       f"parameters ({res.form})", "units": "1", **common})
     write_netcdf(xr.Dataset(data, coords=coords, attrs={"frame": default["frame_note"],
                                                         "accel_units": "count s-1 per g", "gyro_units": "count s-1 per deg/h"}),
                  nc_path, prov)
