@@ -25,7 +25,10 @@ Detection limit of an effect on one axis (:func:`detection_limits`): the smalles
 the baseline's standard error of that parameter) at which the effect is named in at least ``power`` of
 ``reps`` repetitions, and at every larger grid magnitude. An effect the recording cannot test (the baseline lists it
 untestable, or the parameter is undetermined) is "not detectable at any magnitude", with the reason and the
-experiment that would make it testable. Units: the registry's (ug/g^2, ug/g^3, ppm; biases in ug).
+experiment that would make it testable. Units: the registry's (ug/g^2, ug/g^3, ppm; biases in ug) inside, as
+the injections use them. What a user reads (:func:`reported_limit`: the report, ``limits.csv``, the tables) gives
+an asymmetry as the field's scale factor asymmetry ``scale_factor_asymmetry_ppm`` = (K+ - K-) / Kbar (IEEE Std 528 /
+1293), twice the internal ``asym_ppm``, which is kept labelled as the internal model parameter.
 
 The injection proof at twice these limits on the shared recordings is a study
 (:mod:`calib.studies.real_proof`).
@@ -40,6 +43,7 @@ import numpy as np
 from calib.calibration import objectives as ob
 from calib.core import seeds
 from calib.core.progress import Progress
+from calib.diagnosis.analysis import ASYMMETRY_FACTOR, ASYMMETRY_NAME, INTERNAL_ASYMMETRY, STANDARD_ASYMMETRY
 from calib.diagnosis.geometry import TO_MODEL, rate_readings
 from calib.diagnosis.problem import DEFAULT_SETTINGS, Problem
 from calib.diagnosis.report import report_markdown
@@ -305,9 +309,10 @@ def detection_limits(base: ProofBase, reps: int = 20, power: float = 0.95, seed:
             row["points"].append({"multiple_of_se": m, "value": v, "named": named, "n": reps, "rate": named / reps})
         row["limit"] = _limit_of(row["points"], power)
         row["detectable"] = row["limit"] is not None
-        if row["limit"] is None:
+        if row["limit"] is None:     # the largest magnitude tried as the user reads it (reported_limit)
+            top = abs(row["points"][-1]["value"]) * (ASYMMETRY_FACTOR if eff in STANDARD_ASYMMETRY else 1.0)
             row["why"] = (f"not named in >= {power:.0%} of {reps} repetitions up to {MULTIPLES[-1]:g} standard errors "
-                          f"({abs(row['points'][-1]['value']):.4g})")
+                          f"({top:.4g})")
         rows.append(row)
     seg_se = _segment_mean_se(base) if todo_out else None
     for eff, ax in todo_out:
@@ -346,14 +351,42 @@ def _segment_mean_se(base: ProofBase) -> list[float]:
     return out
 
 
+def reported_limit(row: dict) -> dict:
+    """One row of :func:`detection_limits` as a user reads it. An asymmetry term's row gives the field's scale factor
+    asymmetry (K+ - K-) / Kbar (:data:`calib.diagnosis.analysis.STANDARD_ASYMMETRY`): parameter
+    ``scale_factor_asymmetry_ppm[axis]``, and limit, baseline estimate, standard error and power-curve magnitudes
+    twice the internal ``asym_ppm``'s, which are kept under ``internal_model_parameter``. Any other row, and a row
+    already reported, is returned as it is."""
+    eff = row.get("effect")
+    if eff not in STANDARD_ASYMMETRY or eff not in IN_LIBRARY or row.get("kind") != "library" \
+            or not str(row.get("parameter", "")).startswith(IN_LIBRARY[eff]):
+        return row
+    k = ASYMMETRY_FACTOR
+
+    def std(v):
+        return None if v is None else k * v
+
+    return {**row, "parameter": row["parameter"].replace(IN_LIBRARY[eff], ASYMMETRY_NAME, 1),
+            "limit": std(row.get("limit")), "baseline_value": std(row.get("baseline_value")),
+            "baseline_se": std(row.get("baseline_se")),
+            "points": [{**p, "value": k * p["value"]} for p in row.get("points", [])],
+            "unit": "ppm", "quantity": "scale factor asymmetry", "standard": STANDARD_ASYMMETRY[eff],
+            "internal_model_parameter": {"parameter": row["parameter"], "limit": row.get("limit"),
+                                         "baseline_value": row.get("baseline_value"),
+                                         "baseline_se": row.get("baseline_se"), "unit": "ppm",
+                                         "meaning": INTERNAL_ASYMMETRY}}
+
+
 def limits_markdown(limits, title="Detection limits on this recording") -> list[str]:
-    """The limits table (also used by ``calib diagnose --limits``)."""
+    """The limits table (also used by ``calib diagnose --limits``), each row as :func:`reported_limit` gives it."""
     L = [f"## {title}", "",
          "Smallest magnitude named in >= 95 % of block-resampled repetitions of this recording's own noise (library "
-         "terms), or whose misfit is seen (out-of-library effects; ug of input). 'not detectable at any magnitude': "
-         "why, and the experiment that would make it detectable.", "",
-         "| effect | axis | limit | baseline estimate (se) | power curve (magnitude: detected/n) |", "|---|---|---|---|---|"]
-    for r in limits:
+         "terms), or whose misfit is seen (out-of-library effects; ug of input). An asymmetry is the scale factor "
+         f"asymmetry (K+ - K-) / Kbar of IEEE Std 528 / 1293 ({ASYMMETRY_NAME}, ppm). 'not detectable at any "
+         "magnitude': why, and the experiment that would make it detectable.", "",
+         "| effect | axis | parameter | limit | baseline estimate (se) | power curve (magnitude: detected/n) |",
+         "|---|---|---|---|---|---|"]
+    for r in map(reported_limit, limits):
         if r.get("limit") is not None:
             lim = f"{abs(r['limit']):.4g}"
         else:
@@ -361,7 +394,7 @@ def limits_markdown(limits, title="Detection limits on this recording") -> list[
                 f" (experiment: {r['experiment']})" if r.get("experiment") else "")
         base = "" if r.get("baseline_se") is None else f"{r['baseline_value']:.4g} ({r['baseline_se']:.3g})"
         pts = ", ".join(f"{abs(p['value']):.3g}: {p.get('named', p.get('seen'))}/{p['n']}" for p in r["points"])
-        L.append(f"| {r['effect']} | {r['axis']} | {lim} | {base} | {pts} |")
+        L.append(f"| {r['effect']} | {r['axis']} | {r['parameter']} | {lim} | {base} | {pts} |")
     return L + [""]
 
 
@@ -378,7 +411,7 @@ def limits_into_report(path, out_dir, report: dict, settings=None, reps: int = 2
         base = ProofBase(ds, settings, name=str(path))
         rows = detection_limits(base, reps=reps, seed=seed, progress=True)
         report = {**report, "detection_limits": {
-            "rows": rows, "reps_per_magnitude": reps, "power": 0.95, "seed": seed,
+            "rows": [reported_limit(r) for r in rows], "reps_per_magnitude": reps, "power": 0.95, "seed": seed,
             "method": "effects injected through calib.sim.physical's transfer function into block-resampled noise "
                       "of this recording (calib.diagnosis.limits)"}}
     if out_dir is not None:

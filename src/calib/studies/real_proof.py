@@ -7,7 +7,10 @@ The proof on one recording (:func:`prove`): every detectable library term at ``f
 it (*named* alone or in its reported alias group; *covered* when the injected value lies inside the reported 95 %
 interval shifted by the baseline's estimate); and ``n_out`` injections of each out-of-library effect and axis at
 ``factor`` x the size at which its misfit is seen, which must never be explained without its rival form.
-:func:`acceptance` states what the proof must show. Units: the registry's (ug/g^2, ug/g^3, ppm; biases in ug).
+:func:`acceptance` states what the proof must show. Units: the registry's (ug/g^2, ug/g^3, ppm; biases in ug) for
+the injections; the products (:func:`reported_result`) give an asymmetry as the field's scale factor asymmetry
+``scale_factor_asymmetry_ppm`` (twice the internal ``asym_ppm``, which they keep labelled as the internal model
+parameter).
 """
 from __future__ import annotations
 
@@ -20,8 +23,9 @@ from calib.core import seeds
 from calib.core.errors import ResultCheckError
 from calib.core.progress import Progress
 from calib.diagnosis import DEFAULT_SETTINGS
-from calib.diagnosis.limits import (AXES, ProofBase, detection_limits, limits_markdown, out_of_library_spec,
-                                    score_injection)
+from calib.diagnosis.analysis import ASYMMETRY_FACTOR, ASYMMETRY_NAME, INTERNAL_ASYMMETRY, STANDARD_ASYMMETRY
+from calib.diagnosis.limits import (AXES, IN_LIBRARY, ProofBase, detection_limits, limits_markdown,
+                                    out_of_library_spec, reported_limit, score_injection)
 from calib.figures.real_proof_plots import limits_figure
 from calib.io.atomic import write_json as write_json_atomic, write_text as write_text_atomic
 from calib.studies.diagnosis_real import import_real
@@ -240,12 +244,13 @@ def real_proof_products(out_dir, results: list, reps: int = 10, n_inject: int = 
     ``real_proof.json``, ``limits.csv``, ``real_proof.md``, ``limits.png`` and the metrics; exit 3
     (:class:`ResultCheckError`) when an acceptance point fails on a usable recording and ``enforce``."""
     out_dir = Path(out_dir)
+    shown = [reported_result(r) for r in results]      # as the user reads them: the standard asymmetry
     out = {"format": "calib-real-proof-1", "seed": seed, "reps_per_magnitude": reps, "n_inject": n_inject,
-           "n_out": n_out, "factor_of_limit": factor, "recordings": results}
+           "n_out": n_out, "factor_of_limit": factor, "recordings": shown}
     write_json_atomic(out, out_dir / "real_proof.json")
-    write_text_atomic(out_dir / "limits.csv", limits_csv(results))
+    write_text_atomic(out_dir / "limits.csv", limits_csv(shown))
     write_text_atomic(out_dir / "real_proof.md", real_proof_md(out))
-    limits_figure(results, out_dir / "limits.png")
+    limits_figure(shown, out_dir / "limits.png")
     log((out_dir / "real_proof.md").read_text())
     failed = [f"{r['recording']}: {k}" for r in results if r.get("usable")
               for k, v in r["acceptance"].items() if v is False]
@@ -288,7 +293,34 @@ def read_part(path) -> dict:
     return json.loads(Path(path).read_text())
 
 
+def reported_result(result: dict) -> dict:
+    """One recording's result as the products give it: its limits as :func:`calib.diagnosis.limits.reported_limit`
+    gives them, and each library term of its proof with the name of its size parameter (``parameter``) and its
+    injected sizes (``values``) in it -- for an asymmetry the standard ``scale_factor_asymmetry_ppm``, twice the
+    internal ``asym_ppm`` the injections use, kept under ``internal_model_parameter``. A result already reported is
+    returned as it is."""
+    out = {**result, "limits": [reported_limit(L) for L in result.get("limits", [])]}
+    if result.get("proof"):
+        lib = []
+        for q in result["proof"]["in_library"]:
+            eff = q["effect"]
+            if "parameter" in q:            # already as reported
+                pass
+            elif eff in STANDARD_ASYMMETRY:
+                q = {**q, "parameter": ASYMMETRY_NAME,
+                     "values": {a: ASYMMETRY_FACTOR * v for a, v in q["values"].items()},
+                     "internal_model_parameter": {"parameter": IN_LIBRARY[eff], "values": q["values"],
+                                                  "meaning": INTERNAL_ASYMMETRY}}
+            else:
+                q = {**q, "parameter": IN_LIBRARY.get(eff, eff)}
+            lib.append(q)
+        out["proof"] = {**result["proof"], "in_library": lib}
+    return out
+
+
 def limits_csv(results) -> str:
+    """The limits of every recording, one row per term or effect and axis, as :func:`reported_result` gives them."""
+    results = [reported_result(r) for r in results]
     lines = ["recording,effect,axis,parameter,kind,baseline_value,baseline_se,detection_limit,detectable,why"]
     for r in results:
         for L in r.get("limits", []):
@@ -302,6 +334,8 @@ def limits_csv(results) -> str:
 
 
 def real_proof_md(out) -> str:
+    """The proof's Markdown page from the products' JSON (``recordings`` as :func:`reported_result` gives them)."""
+    out = {**out, "recordings": [reported_result(r) for r in out["recordings"]]}
     L = ["# The diagnosis proved on real recordings", "",
          f"Effects injected into each shared recording through the physical transfer function (calib.sim.physical) "
          f"on block-resampled noise of the recording itself; detection limits from {out['reps_per_magnitude']} "
@@ -325,7 +359,8 @@ def real_proof_md(out) -> str:
                   "interval (n) |", "|---|---|---|---|---|"]
             for q in p["in_library"]:
                 cov = "n/a" if q["coverage"] is None else f"{q['coverage']:.3f}"
-                L.append(f"| {q['effect']} ({', '.join(f'{a}: {v:.4g}' for a, v in q['values'].items())}) | {q['n']} | "
+                L.append(f"| {q['effect']}, {q['parameter']} ({', '.join(f'{a}: {v:.4g}' for a, v in q['values'].items())})"
+                         f" | {q['n']} | "
                          f"{q['named_rate']:.3f} | {q['named_exactly']}/{q['n']} | {cov} ({q['coverage_n']}) |")
             L.append("")
             L += ["| out-of-library at 2x the size seen | n | explained | verdicts |", "|---|---|---|---|"]
