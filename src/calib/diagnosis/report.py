@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.diagnosis.bound import attach_bounds
 from calib.diagnosis.geometry import AXES, ROWS, SENSORS
 from calib.diagnosis.problem import REPORT_FORMAT, Problem
 from calib.sim import effects
@@ -122,6 +123,11 @@ def report_markdown(rep: dict) -> str:
     L.append("")
     if not rep["found"]:
         L.append("Nothing: no candidate term passes the BIC and likelihood-ratio tests.")
+    elif rep.get("bounds", {}).get("computed"):
+        L.append("σ_CRB: the Cramér–Rao bound of the window reductions the diagnosis observes, under the noise it "
+                 "measured, with the base parameters free (report.json: bounds); se / σ_CRB near 1 is efficient on "
+                 "these observations.")
+        L.append("")
     for f in rep["found"]:
         al = ", ".join(f"{a['key']} (dBIC {a['delta_bic_vs_found']:.1f})" for a in f["aliases"]) or "none"
         L.append(f"### {f['effect']} ({f['sensor']}), BIC gain {fmt(f['delta_bic'])}, LRT p = {fmt(f['p_lrt'], 3)}")
@@ -131,14 +137,22 @@ def report_markdown(rep: dict) -> str:
                  f"magnitude: discrimination non-centrality < {rep['settings'].get('alias_noncentrality', 13):g}): "
                  f"{al}")
         L.append("")
-        L.append("| parameter | value | 95 % interval | unit |")
-        L.append("|---|---|---|---|")
+        crb = bool(f["parameters"]) and "sigma_crb" in f["parameters"][0]
+        L.append("| parameter | value | 95 % interval |" + (" se | σ_CRB | se / σ_CRB |" if crb else "") + " unit |")
+        L.append("|---|---|---|" + ("---|---|---|" if crb else "") + "---|")
         for p in f["parameters"]:
             name = p["name"] + (f" ({p['standard']}: {p['definition']})" if p.get("standard") else "")
-            L.append(f"| {name} | {fmt(p['value'], 5)} | [{fmt(p['ci95'][0], 5)}, {fmt(p['ci95'][1], 5)}] "
-                     f"| {p['unit']} |")
+            crb_txt = fmt(p["sigma_crb"], 3) if p.get("sigma_crb") is not None else "not determined"
+            bound = f" {fmt(p['se'], 3)} | {crb_txt} | {fmt(p.get('se_over_crb'), 3)} |" if crb else ""
+            L.append(f"| {name} | {fmt(p['value'], 5)} | [{fmt(p['ci95'][0], 5)}, {fmt(p['ci95'][1], 5)}] |{bound} "
+                     f"{p['unit']} |")
         if f.get("tau_s"):
-            L.append(f"| tau (profiled) | {f['tau_s']:g} | -- | s |")
+            L.append(f"| tau (profiled) | {f['tau_s']:g} | -- |" + (" -- | -- | -- |" if crb else "") + " s |")
+        if f.get("bounds_not_estimated"):
+            L.append("")
+            L.append("Held at zero by the diagnosis; σ_CRB were each estimated beside the others: " + "; ".join(
+                f"{b['name']} {fmt(b['sigma_crb'], 3) if b['sigma_crb'] is not None else 'not determined'}"
+                for b in f["bounds_not_estimated"]))
         internal = [p["internal_model_parameter"] for p in f["parameters"] if p.get("internal_model_parameter")]
         if internal:
             L.append("")
@@ -310,6 +324,10 @@ def build_report(prob: Problem, res: dict, path, st, figures_dir=None) -> dict:
         "noise": _noise_summary(prob),
     })
     rep.update({k: v for k, v in res.items() if not k.startswith("_")})
+    if st.get("report_detail", True):
+        # the Cramer-Rao bound beside every estimate (not in the proof's per-seed runs, which score the verdict and
+        # the findings only)
+        rep["bounds"] = attach_bounds(prob, *res["_fits"], rep["found"], rep["base_parameters"])
     figs = []
     if figures_dir is not None and st.get("figures", True):
         figs = write_figures(prob, res["_fits"], figures_dir, res.get("unexplained") or ())

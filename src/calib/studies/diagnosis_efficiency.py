@@ -14,7 +14,7 @@ base parameters as nuisances):
     J_r = D_r^T Sigma_r^-1 D_r,    D_r = W^T D,    Sigma_r = W^T Sigma W   (per channel)
 
 ``W`` the reduction weights of every window, ``D`` the per-sample derivatives, ``Sigma`` the exact stationary
-covariance of the noise (:func:`_reduction_covariance`). Then
+covariance of the noise (:func:`calib.diagnosis.bound.reduction_covariance`). Then
 
 * ``reduced bound / stream bound`` is the information the reduction leaves out (the moves, ramps and partial
   revolutions, and the averaging inside a window): a property of the path and of the reduction, not of the fit;
@@ -30,9 +30,9 @@ import math
 from types import SimpleNamespace
 
 import numpy as np
-from scipy import signal as sp_signal
 from scipy import stats
 
+from calib.diagnosis.bound import reduction_covariance as _reduction_covariance
 from calib.diagnosis.geometry import SENSORS, Window, build_geometry, rows_of
 from calib.sim import effects as sim_effects
 from calib.sim import fisher as sim_fisher
@@ -73,45 +73,14 @@ def _columns(cfg: dict, sim, clean, effect_id: str, params: dict, temperature):
     return enames, ecols, ncols
 
 
-def _reduction_covariance(rows, white: float, gm_var: float, a: float, quant: bool) -> np.ndarray:
-    """Covariance ``W^T Sigma W`` of window reductions ``rows`` ((i0, i1, weights) each, in time order) under the
-    exact stationary noise of one channel: white noise of variance ``white`` per sample, a first-order Gauss-Markov
-    bias with autocovariance ``gm_var a^|k|`` and, when ``quant``, the pulse counter's carried remainder
-    (``r_k-1 - r_k``, r uniform: autocovariance 1/6, -1/12 at lag 1). The bias terms between windows factor
-    (``a^(j - i)`` over disjoint supports), within a window they are two first-order recursions."""
-    m = len(rows)
-    u, v, filt, dq = np.empty(m), np.empty(m), [], []
-    for r, (i0, i1, w) in enumerate(rows):
-        pw = a ** np.arange(i1 - i0)
-        u[r] = w @ pw[::-1]                  # sum_i w_i a^(i1 - 1 - i): the weights seen from the window's end
-        v[r] = w @ pw                        # sum_j w_j a^(j - i0): from its start
-        fwd = sp_signal.lfilter([1.0], [1.0, -a], w)
-        bwd = sp_signal.lfilter([1.0], [1.0, -a], w[::-1])[::-1]
-        filt.append(fwd + bwd - w)           # sum_j a^|i - j| w_j within the window
-        dq.append(np.diff(np.concatenate([[0.0], w, [0.0]])))   # sum_k w_k (r_k-1 - r_k) = -sum_j r_j dq_j
-    i0s = np.array([r[0] for r in rows])
-    i1s = np.array([r[1] for r in rows])
-    later = i0s[None, :] > i0s[:, None]                        # row q's window after row r's
-    gap = np.where(later, i0s[None, :] - (i1s[:, None] - 1), 0)
-    M = np.where(later, gm_var * np.outer(u, v) * a ** gap, 0.0)
-    if quant:                                                  # adjacent windows share one carried remainder
-        for r, q in zip(*np.nonzero(later & (gap == 1))):
-            M[r, q] += dq[r][-1] * dq[q][0] / 12.0
-    Sr = M + M.T
-    for r, (i0, i1, w) in enumerate(rows):                     # rows of one window (its mean and harmonics)
-        for q in np.flatnonzero((i0s == i0) & (i1s == i1)):
-            Sr[r, q] = white * float(w @ rows[q][2]) + gm_var * float(w @ filt[q]) + \
-                (float(dq[r] @ dq[q]) / 12.0 if quant else 0.0)
-    return Sr
-
-
 def reduced_information(cols, sim, geom, n_effect: int | None = None) -> np.ndarray | None:
     """Fisher information of the window reductions of geometry ``geom`` (:func:`calib.diagnosis.geometry.
     build_geometry`: static means, rotation means and gyro harmonics) about the parameters of the per-sample
     derivative columns ``cols`` (list of (n, 6)) under the noise of simulator ``sim``: per channel
     ``Dr^T Sr^-1 Dr``, ``Dr = W^T D``, ``Sr = W^T Sigma W`` with Sigma the exact stationary covariance
-    (:func:`_reduction_covariance`; no circulant approximation: for effects as slow as the session, the circulant
-    form wraps the end of the bias instability onto its start and overstates the information severalfold).
+    (:func:`calib.diagnosis.bound.reduction_covariance`; no circulant approximation: for effects as slow as the
+    session, the circulant form wraps the end of the bias instability onto its start and overstates the
+    information severalfold).
     ``n_effect``: the first columns are the effect's (default all); a channel none of them touches is left out
     (its rows and columns of the result stay zero). None for a random-walk bias (not stationary)."""
     nz = sim.noise
