@@ -21,6 +21,7 @@ from calib.signal import segments
 from calib.sim.calibration_session import (build_calibration_simulator, calibration_session_channels,
                                            calibration_session_dataset)
 from calib.sim.fisher import mean_noise_models
+from calib.sim.static_session import static_counts_dataset
 from calib.studies import calibration as cs
 from calib.studies import stages
 
@@ -158,3 +159,29 @@ def test_what_the_windows_do_not_give_is_null_with_a_reason(tmp_path, session, c
         assert "rotation of the whole triad" in rows["null_reason"][n]
     assert all(rows["sigma_crb"][n] > 0 for n in ("bx", "by", "bz")) and not {"bx", "by", "bz"} & set(
         rows["null_reason"])
+
+
+def test_with_a_noise_record_the_bound_uses_the_measured_noise(tmp_path, ccfg):
+    """The default unit's noise (white, quantisation, Gauss-Markov bias correlated between windows) and a 2 h
+    static record of it: the bound uses the noise model the calibration fitted, and agrees with the bound from
+    the simulator's own noise (:func:`calib.sim.fisher.mean_noise_models`) at the same estimate within the
+    accuracy of the fitted noise (25 %), while the windows' own sigmas (no slow bias) give a bias bound below."""
+    session = {k: v for k, v in SESSION.items() if k != "noise"}
+    cfg = stages.calibration_cfg(session, SITE)
+    sim = build_calibration_simulator(cfg, 1)
+    inp = segments.extract(cs._as_loaded(calibration_session_dataset(sim, 100, sim.clean_increments(),
+                                                                     calibration_session_channels(sim)),
+                                         Path("s.nc")))
+    check = {"duration_h": 2.0, "attitude_deg": {"pitch": 0.0, "roll": 0.0, "yaw": 0.0}}
+    rec = static_counts_dataset(stages.static_check_cfg(check, session, SITE), 101, path=tmp_path / "l.nc")
+    noise = cs.noise_models(inp, rec, ccfg)
+    d, out = _written(tmp_path, inp, ccfg, noise=noise)
+    assert "long static record" in out["accel"]["bound"]["noise"] and out["gyro"]["bound"]["noise"].startswith(
+        "the noise model")
+    true_b = cs.default_bound(inp, d, mean_noise_models(sim))
+    seg_b = cs.default_bound(inp, d, None)
+    for sensor in ("accel", "gyro"):
+        for n, v in out[sensor]["sigma_crb"].items():
+            assert v == pytest.approx(true_b[sensor]["sigma_crb"][n], rel=0.25), (sensor, n)
+    for n in ("bx", "by", "bz"):
+        assert seg_b["accel"]["sigma_crb"][n] < out["accel"]["sigma_crb"][n]

@@ -483,18 +483,19 @@ def write_default(default, json_path, nc_path, prov, true_vec, bound: dict | Non
         dim = "parameter" if tuple(res.names) == tuple(PARAM_NAMES) else f"{sensor}_{res.form}_parameter"
         if dim != "parameter":
             coords[dim] = list(res.names)
-        units = "count s-1 per g" if sensor == "accel" else "count s-1 per deg/h"
+        per = "g" if sensor == "accel" else "deg/h"
         nd = "; ".join(f"{n}: {r}" for n, r in b["null_reason"].items())
-        common = {"observe": b["block"]["observe"], "noise": b["block"]["noise"],
-                  "not_determined": nd or "none (NaN only where a reason is given here)"}
+        common = {"observe": b["block"]["observe"], "noise": b["block"]["noise"], "null_reason": nd or "none"}
         data[f"{sensor}_sigma_crb"] = ((dim,), [np.nan if b["sigma_crb"][n] is None else b["sigma_crb"][n]
                                                 for n in res.names],
                                        {"long_name": f"Cramer-Rao bound of the {sensor} parameters ({res.form}) at "
-                                                     "the estimate", "units": f"{units} (K, b); 1 (E)", **common})
+                                                     "the estimate (NaN: null_reason)",
+                                        "parameter_units": f"K: count s-1 per {per}; E: 1; b: count s-1", **common})
         data[f"{sensor}_se_over_crb"] = ((dim,), [np.nan if b["se_over_crb"][n] is None else b["se_over_crb"][n]
                                                   for n in res.names],
                                          {"long_name": f"reported standard error / Cramer-Rao bound of the {sensor} "
-                                                       f"parameters ({res.form})", "units": "1", **common})
+                                                       f"parameters ({res.form}) (NaN: null_reason)", "units": "1",
+                                          **common})
     write_netcdf(xr.Dataset(data, coords=coords, attrs={"frame": default["frame_note"],
                                                         "accel_units": "count s-1 per g", "gyro_units": "count s-1 per deg/h"}),
                  nc_path, prov)
