@@ -66,8 +66,8 @@ def test_accel_fit_spread_over_seeds_matches_the_bound():
 
 
 def test_fieldcal_report_holds_the_bounds(synthetic_session):
-    """``calib fieldcal``'s report (the result's summary) gives sigma_crb beside the accel's 9 parameters and the
-    gyro's static bias, and for the gyro's direction parameters no number, with the reason."""
+    """``calib fieldcal``'s report (the result's summary) gives sigma_crb beside the accel's 9 parameters, the
+    gyro's static bias and the gyro's gravity-direction parameters (:func:`calib.fieldcal.bound.gyro_direction_bound`)."""
     s = synthetic_session(3, n_poses=14)
     ds = recording.make_dataset(s["accel"], s["gyro"], sample_rate_hz=s["fs"], latitude_deg=45.0,
                                 accel_units="m s-2", gyro_units="rad s-1", gravity_m_s2=s["gravity"],
@@ -81,4 +81,5 @@ def test_fieldcal_report_holds_the_bounds(synthetic_session):
     assert [gyr["sigma"][n] for n in BIAS_NAMES] == pytest.approx(
         np.asarray(gyr["noise_sigma_per_sample"]) / math.sqrt(n_static), rel=1e-12)
     assert np.allclose(gyr["noise_sigma_per_sample"], 5e-4, rtol=0.05)   # the session's gyro noise
-    assert all(gyr["sigma"][n] is None and gyr["why_none"][n] for n in GYRO_NAMES)
+    assert all(gyr["sigma"][n] > 0 and n not in gyr["why_none"] for n in GYRO_NAMES)
+    assert gyr["direction"]["motions"] == len(res.intervals) - 1

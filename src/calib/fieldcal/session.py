@@ -266,6 +266,7 @@ def _norm(inp: _Inputs, det_cfg: dict, notes: list, metrics: dict, x0=None):
             "statics": "bias: mean over all static samples"}[bias_mode])
         gyr_fit.notes.append(f"integration step: {gset.get('dt', 'nominal')}")
         gyr_fit.extra["bias_mode"] = bias_mode
+        gyr_fit.extra["integration_dt"] = dts   # the steps integrated: the gravity-direction bound uses the same
         metrics["gyro_direction_rms_deg"] = gyr_fit.residual_rms
         metrics["gyro_direction_rms_before_deg"] = gyr_fit.extra["rms_before_deg"]
         metrics["gyro_direction_max_deg"] = float(np.max(gyr_fit.extra["pair_angles_deg"]))
