@@ -274,10 +274,10 @@ def candidates(acc, gyr, fs: float, protocol: Protocol, samples_per_interval=Non
                     det.update(threshold=k * fa)
                     if fg is not None:
                         det.update(gyro_threshold=k * fg)
+                else:   # the initial rest's length (none: the rest detect_static finds)
+                    det.update(base)
                 if gyr is None:
                     det.update(use_gyro=False)
-                else:
-                    det.update({kk: v for kk, v in base.items()})
                 try:
                     d = detect.detect_static(acc, gyr, fs, **{kk: v for kk, v in det.items() if kk != "rule"},
                                              stat_accel=sa, stat_gyro=sg)
