@@ -26,6 +26,8 @@ from scipy import stats
 
 from calib.diagnosis import (DEFAULT_SETTINGS, diagnose_dataset, diagnose_recording, fmt, is_shape_parameter,
                              residual_figure)
+from calib.diagnosis.analysis import (ASYMMETRY_DEFINITION, ASYMMETRY_FACTOR, ASYMMETRY_NAME, INTERNAL_ASYMMETRY,
+                                     STANDARD_ASYMMETRY)
 from calib.io import recording
 from calib.io.netcdf import provenance
 from calib.io.atomic import atomic_path, write_json as write_json_atomic, write_text as write_text_atomic
@@ -658,7 +660,33 @@ def _power_scales(r):
     return [min(1.0, s80 * f) for f in (0.5, 0.71, 1.0, 1.41, 2.0)]
 
 
+#: the simulator's (registry's) name of an asymmetry effect's internal parameter d of K(1 +- d)
+INTERNAL_ASYMMETRY_KEY = "asym_ppm"
+
+
+def reported_magnitude(eff: dict | None) -> dict | None:
+    """An effects config (effect -> parameters) as the power tables report it: an asymmetry effect's internal
+    ``asym_ppm`` (the model parameter d of K(1 +- d), what the injections use) becomes the standard scale factor
+    asymmetry (K+ - K-) / Kbar of IEEE Std 528 / 1293, ``scale_factor_asymmetry_ppm`` = 2 asym_ppm
+    (:data:`calib.diagnosis.analysis.ASYMMETRY_NAME`, ``ASYMMETRY_FACTOR``), in its place; every other parameter as
+    it is. Reporting only: the injections keep the internal value."""
+    if not eff:
+        return eff
+    out = {}
+    for eid, params in eff.items():
+        if eid not in STANDARD_ASYMMETRY:
+            out[eid] = params
+            continue
+        out[eid] = {(ASYMMETRY_NAME if k == INTERNAL_ASYMMETRY_KEY else k):
+                    (((np.asarray(v, float) * ASYMMETRY_FACTOR).tolist() if np.ndim(v) else float(v) * ASYMMETRY_FACTOR)
+                     if k == INTERNAL_ASYMMETRY_KEY else v) for k, v in params.items()}
+    return out
+
+
 def _power_table(results, names):
+    """The detection-power table: per single-effect session its points (scale: detected/n), the smallest scale
+    detected in >= 80 % of the seeds and that magnitude as :func:`reported_magnitude` gives it (an asymmetry as
+    ``scale_factor_asymmetry_ppm``, the internal ``asym_ppm`` kept under ``internal_model_parameter``)."""
     tab = {}
     for nm in names:
         rs = sorted([r for r in results if r["name"] == nm and r["scale"] != 1.0], key=lambda r: r["scale"])
@@ -672,9 +700,18 @@ def _power_table(results, names):
         ok = [p["scale"] for p in pts if p["rate"] >= 0.8]
         s80 = min(ok) if ok else None
         eff = PROOF_SESSIONS[nm][1]
+        mag = _scale_effects(eff, s80) if s80 else None
         tab[nm] = {"points": pts, "smallest_scale_detected_80pct": s80,
-                   "injected_at_scale_1": eff,
-                   "smallest_magnitude_detected_80pct": _scale_effects(eff, s80) if s80 else None}
+                   "injected_at_scale_1": reported_magnitude(eff),
+                   "smallest_magnitude_detected_80pct": reported_magnitude(mag)}
+        asym = [e for e in eff if e in STANDARD_ASYMMETRY]
+        if asym:
+            tab[nm].update({"quantity": "scale factor asymmetry",
+                            "standard": "; ".join(STANDARD_ASYMMETRY[e] for e in asym),
+                            "definition": f"{ASYMMETRY_NAME} = {ASYMMETRY_DEFINITION}",
+                            "internal_model_parameter": {"injected_at_scale_1": eff,
+                                                         "smallest_magnitude_detected_80pct": mag,
+                                                         "meaning": INTERNAL_ASYMMETRY}})
         main = [r for r in results if r["name"] == nm and r["scale"] == 1.0 and r.get("fisher")]
         if main and "detection" in main[0]["fisher"]:   # what an ideal test at the same threshold could reach
             tab[nm]["fisher_limited_scale_80pct"] = dict(main[0]["fisher"]["detection"])
@@ -918,6 +955,9 @@ def _proof_md(out) -> str:
     if out.get("power"):
         L.append("## Detection power (smallest fraction of the proof magnitude detected in >= 80 % of seeds)")
         L.append("")
+        if any("internal_model_parameter" in p for p in out["power"].values()):
+            L += [f"An asymmetry's magnitude is the scale factor asymmetry {ASYMMETRY_NAME} = (K+ - K-) / Kbar "
+                  "(IEEE Std 528 / 1293), twice the simulator's internal asym_ppm that the injections use.", ""]
         for nm, p in out["power"].items():
             pts = ", ".join(f"{q['scale']:.3g}: {q['detected']}/{q['n']}" for q in p["points"])
             mag = p.get("smallest_magnitude_detected_80pct")
