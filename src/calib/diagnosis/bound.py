@@ -24,6 +24,7 @@ a parameter a combination of the others can replace (:func:`calib.core.informati
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numba
@@ -71,7 +72,6 @@ STREAM = {"computed": False,
                   "it for synthetic sessions (calib.studies.diagnosis_efficiency)")}
 
 
-@numba.njit(cache=True, nogil=True)
 def _first_order(w, a):  # pragma: no cover - compiled
     """``y_i = w_i + a y_i-1`` (y_-1 = 0): the first-order recursion of a Gauss-Markov bias over a window (what
     ``scipy.signal.lfilter([1], [1, -a], w)`` computes, bit for bit, without loading scipy.signal)."""
@@ -81,6 +81,13 @@ def _first_order(w, a):  # pragma: no cover - compiled
         acc = w[i] + a * acc
         y[i] = acc
     return y
+
+
+@functools.cache
+def _compiled_first_order():
+    """:func:`_first_order` compiled (numba, cached on disk) at its first use: setting up the compiled function
+    costs about 10 ms, which a diagnosis that finds nothing never needs."""
+    return numba.njit(cache=True, nogil=True)(_first_order)
 
 
 def reduction_covariance(rows, white: float, gm_var: float, a: float, quant, rw_var: float = 0.0) -> np.ndarray:
@@ -101,8 +108,8 @@ def reduction_covariance(rows, white: float, gm_var: float, a: float, quant, rw_
             pw = a ** np.arange(i1 - i0)
             u[r] = w @ pw[::-1]              # sum_i w_i a^(i1 - 1 - i): the weights seen from the window's end
             v[r] = w @ pw                    # sum_j w_j a^(j - i0): from its start
-            fwd = _first_order(w, a)
-            bwd = _first_order(w[::-1], a)[::-1]
+            fwd = _compiled_first_order()(w, a)
+            bwd = _compiled_first_order()(w[::-1], a)[::-1]
             filt.append(fwd + bwd - w)       # sum_j a^|i - j| w_j within the window
         dq.append(np.diff(np.concatenate([[0.0], w, [0.0]])))   # sum_k w_k (r_k-1 - r_k) = -sum_j r_j dq_j
     i0s = np.array([r[0] for r in rows])
