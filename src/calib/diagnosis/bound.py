@@ -248,13 +248,14 @@ def _patched_base(prob: Problem, final: Fit) -> np.ndarray:
     return prob.X0
 
 
-def attach_bounds(prob: Problem, base: Fit, final: Fit, found: list, base_parameters: list) -> dict:
-    """Add ``sigma_crb`` and ``se_over_crb`` to every parameter of every ``found`` term (the internal model
-    parameter of an asymmetry too; as fitted: the parameters the diagnosis estimates free, those it holds at zero
-    held) and to every entry of ``base_parameters`` (bounds of the base model alone, as their ``se_before``), and a
-    ``bounds_not_estimated`` list per found term (the parameters it holds at zero: their bound were they estimated,
-    or None and why not); returns the report's ``bounds`` block. Nothing is computed when nothing was found or the model is not the
-    vector model (the norm model observes nonlinear norms of the static means)."""
+def attach_bounds(prob: Problem, final: Fit, found: list, base_parameters: list) -> dict:
+    """Add ``sigma_crb`` and ``se_over_crb`` to every parameter of every ``found`` term of the final fit ``final``
+    (the internal model parameter of an asymmetry too; as fitted: the parameters the diagnosis estimates free, those
+    it holds at zero held) and to every entry of ``base_parameters`` (bounds of the base model alone, as their
+    ``se_before``), and a ``bounds_not_estimated`` list per found term (the parameters it holds at zero: their bound
+    were they estimated, or None and why not); returns the report's ``bounds`` block. Nothing is computed when
+    nothing was found or the model is not the vector model (the norm model observes nonlinear norms of the static
+    means)."""
     block = {"what": WHAT, "observations": OBSERVATIONS, "noise": NOISE, "nuisances": NUISANCES, "ratio": RATIO,
              "stream_bound": STREAM}
     if not found:

@@ -327,7 +327,7 @@ def build_report(prob: Problem, res: dict, path, st, figures_dir=None) -> dict:
     if st.get("report_detail", True):
         # the Cramer-Rao bound beside every estimate (not in the proof's per-seed runs, which score the verdict and
         # the findings only)
-        rep["bounds"] = attach_bounds(prob, *res["_fits"], rep["found"], rep["base_parameters"])
+        rep["bounds"] = attach_bounds(prob, res["_fits"][1], rep["found"], rep["base_parameters"])
     figs = []
     if figures_dir is not None and st.get("figures", True):
         figs = write_figures(prob, res["_fits"], figures_dir, res.get("unexplained") or ())
