@@ -183,3 +183,20 @@ def test_a_null_session_bounds_nothing(tmp_path):
     rep, _ = dg.diagnose_dataset(fs.dataset(11), None, FAST, path="seed 11")
     assert rep["found"] == [] and rep["bounds"]["computed"] is False
     assert all("sigma_crb" not in p for p in rep["base_parameters"])
+
+
+def test_a_bound_that_cannot_be_formed_changes_nothing_else(k2_session, monkeypatch):
+    """When the information cannot be factorised the report says why and carries no partial bound; the verdict
+    and the findings are those without it."""
+    ds = k2_session.dataset(SEEDS[0])
+    ref, _ = dg.diagnose_dataset(ds, None, FAST, path="seed")
+
+    def fail(*a, **k):
+        raise np.linalg.LinAlgError("Matrix is not positive definite")
+
+    monkeypatch.setattr(bound, "information", fail)
+    rep, _ = dg.diagnose_dataset(ds, None, FAST, path="seed")
+    assert rep["bounds"]["computed"] is False and "not positive definite" in rep["bounds"]["why"]
+    assert rep["verdict"] == ref["verdict"] and [f["key"] for f in rep["found"]] == [f["key"] for f in ref["found"]]
+    assert not any("sigma_crb" in p for f in rep["found"] for p in f["parameters"])
+    assert not any("sigma_crb" in p for p in rep["base_parameters"])
