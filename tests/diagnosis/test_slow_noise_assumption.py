@@ -140,3 +140,42 @@ def test_asymmetry_is_reported_as_the_standard_scale_factor_asymmetry(tmp_path, 
         q = p["internal_model_parameter"]
         assert q["name"] == f"asym_ppm[{p['axis']}]" and "model parameter" in q["meaning"]
         assert q["value"] * 2.0 == pytest.approx(p["value"], rel=1e-12)
+
+
+def test_scored_runs_skip_only_the_level_search(small_periodic, noise_record, monkeypatch):
+    """``report_detail: false`` (the proof's seeds, scored on their verdict alone) leaves out the bisection for the
+    smallest slow level, and nothing else: the verdict, the findings, whether the verdict rests on a slow level and
+    which axes need one are those of the full report; the level itself is reported as not searched, never as a
+    number; and the adequacy family runs at most twice per sensor (the two ends) instead of 2 + 24 times."""
+    from calib.diagnosis import adequacy as adq_mod
+    calls = {"n": 0}
+    real = adq_mod._temporary_adequacy
+
+    def counted(*a, **k):
+        calls["n"] += 1
+        return real(*a, **k)
+
+    monkeypatch.setattr(adq_mod, "_temporary_adequacy", counted)
+    met = 0
+    for seed in (101, 102):
+        ds = small_periodic.dataset(seed)
+        reps = {}
+        for detail in (True, False):
+            calls["n"] = 0
+            reps[detail], _ = dg.diagnose_dataset(ds, None, {"figures": False, "noise_record": noise_record,
+                                                             "report_detail": detail}, path=f"seed {seed}")
+            reps[detail]["_trials"] = calls["n"]
+        full, short = reps[True], reps[False]
+        assert (short["verdict"], short["explained"]) == (full["verdict"], full["explained"])
+        assert [f["key"] for f in short.get("found", [])] == [f["key"] for f in full.get("found", [])]
+        sf, ss = full["adequacy"]["slow_noise"], short["adequacy"]["slow_noise"]
+        for k in ("rests_on_slow_level", "rests_on_assumed_level"):
+            assert ss[k] == sf[k]
+        assert [(e["sensor"], e["axis"]) for e in ss["levels"]] == [(e["sensor"], e["axis"]) for e in sf["levels"]]
+        if sf["levels"]:
+            met += 1
+            assert all(e["minimum_for_adequacy"] is None and e["not_computed"] for e in ss["levels"])
+            assert all(e["minimum_for_adequacy"] > 0 for e in sf["levels"])
+            n_sensors = len({e["sensor"] for e in sf["levels"]})
+            assert short["_trials"] <= 2 * n_sensors < full["_trials"]
+    assert met >= 1      # a seed whose verdict rests on a slow level

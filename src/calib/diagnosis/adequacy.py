@@ -240,7 +240,7 @@ def segment_lags(prob: Problem) -> np.ndarray:
 
 
 def slow_noise_assumption(prob: Problem, f: Fit, adq: dict, *, L_assumed: dict, slow: dict, source: str,
-                          source_kind: str, record=None) -> dict:
+                          source_kind: str, record=None, precise: bool = True) -> dict:
     """What an adequacy verdict of ``f`` assumes of the slow noise between the segments.
 
     ``adq`` is the family of :func:`adequacy` on the factors ``L_assumed`` (the noise the verdict used), whose
@@ -257,7 +257,12 @@ def slow_noise_assumption(prob: Problem, f: Fit, adq: dict, *, L_assumed: dict, 
     by BIC, :func:`calib.diagnosis.noise.record_point_models`): the band is then an interval of a measured quantity.
     Otherwise the verdict rests on an assumed level (``rests_on_assumed_level``): the upper end of a band the record
     cannot close, or, without a record, the session's own
-    within-segment random walk extended between the segments."""
+    within-segment random walk extended between the segments.
+
+    ``precise`` false (``report_detail: false``: runs scored on their verdict alone, as the proof's seeds): whether
+    a sensor needs a level in (0, 1] of its assumed one is decided as always (the family at the two ends), but the
+    bisection for the smallest such level, and the record length that follows from it, are left out; the entries
+    say so (``None`` and ``not_computed``). The verdict and ``rests_on_*`` are the same either way."""
     g = prob.geom
     out = {"source": source, "source_kind": source_kind, "record": str(record) if record else None,
            "record_minutes": record_minutes(record) if record else None,
@@ -282,7 +287,7 @@ def slow_noise_assumption(prob: Problem, f: Fit, adq: dict, *, L_assumed: dict, 
     taus = segment_lags(prob)
     M = base_estimates(f.theta)[0]
     for s in involved:
-        m = slow_level_needed(prob, f, L_assumed, Cw, s)
+        m = slow_level_needed(prob, f, L_assumed, Cw, s, iters=24 if precise else 0)
         if not m > 0:
             continue
         axes = [a for a in range(3) if (s, AXES[a]) in rejected] or list(range(3))
@@ -294,10 +299,16 @@ def slow_noise_assumption(prob: Problem, f: Fit, adq: dict, *, L_assumed: dict, 
             if record:      # a slow part the record's own Allan deviation resolves (BIC), not only one it allows
                 pm = record_point_models(record)[s]
                 detected = bool(pm.fit and pm.fit[a].get("slow_detected_bic", False) and pm.slow[a] != "none")
+            unit = g.units_out[s]
+            if not precise:
+                out["levels"].append({"sensor": s, "axis": AXES[a], "unit": unit,
+                                      "fraction_of_assumed_variance_needed": None, "minimum_for_adequacy": None,
+                                      "record_minutes_needed": None, "record_resolves_it": detected,
+                                      "not_computed": "report_detail false: the smallest level is not searched"})
+                continue
             x = math.sqrt(m) * sig
             af = 3.0 * prob.noise.Q_shape[s][a] ** 2 / taus**2 + prob.noise.N_shape[s][a] ** 2 / taus
             need_min = float(record_minutes_needed(g.fs, taus, af, slow_avar(taus, tc, x)))
-            unit = g.units_out[s]
             ent = {"sensor": s, "axis": AXES[a], "unit": unit,
                    "assumed": ({"kind": "random walk", "K": sig, "unit": f"{unit} s^-1/2"} if math.isinf(tc) else
                                {"kind": "Gauss-Markov bias", "sigma": sig, "tc_s": tc, "unit": unit}),
@@ -315,6 +326,9 @@ def slow_noise_assumption(prob: Problem, f: Fit, adq: dict, *, L_assumed: dict, 
                       for t in aw["tests"] if t["rejected"])
 
     def levels(es):
+        if not precise:
+            return "; ".join(f"{e['sensor']} {e['axis']}: a level above zero (its size not searched, "
+                             "report_detail false)" for e in es)
         return "; ".join(
             f"{e['sensor']} {e['axis']} >= {e['minimum_for_adequacy']:.3g} {e['minimum_unit']}"
             + (f" ({e['minimum_for_adequacy_input_unit']:.3g} {e['input_unit']})" if "input_unit" in e else "")

@@ -521,14 +521,14 @@ def analyse(prob: Problem) -> dict:
     # measure is inconclusive, with the level it needs and the static record that would decide
     if verdict == "inconclusive" and adq_estimated is not None and adq_estimated["adequate"] and prob.kind == "vector":
         slow = _slow_basis(prob, estimated=True)
-        sna = slow_noise_assumption(prob, final, adq_estimated, L_assumed=prob.L, **slow)
+        sna = slow_noise_assumption(prob, final, adq_estimated, L_assumed=prob.L, precise=detail, **slow)
         if sna["statement"]:
             reason += "; " + sna["statement"]
     else:
         slow = _slow_basis(prob)
         judged = base if verdict == "adequate" else final
         sna = slow_noise_assumption(prob, judged, adq["before" if verdict == "adequate" else "after"],
-                                    L_assumed=measured_factors(prob), **slow)
+                                    L_assumed=measured_factors(prob), precise=detail, **slow)
         if verdict in ("adequate", "missing_physics") and sna["rests_on_assumed_level"]:
             what = ("the base model is adequate" if verdict == "adequate" else
                     "the found terms (" + ", ".join(f["key"] for f in found) + ") explain the data")

@@ -74,6 +74,10 @@ def report_markdown(rep: dict) -> str:
                      f"{'**fails**' if t['rejected'] else 'passes'} |")
         L.append("")
         for e in sn.get("levels", []):
+            if e.get("not_computed"):
+                L.append(f"- {e['sensor']} {e['axis']}: passes only with a bias instability above zero between the "
+                         f"segments ({e['not_computed']})")
+                continue
             conv = (f" ({fmt(e['minimum_for_adequacy_input_unit'], 3)} {e['input_unit']})"
                     if "input_unit" in e else "")
             shown = {True: "the record resolves it: measured", False: "the record does not resolve it: assumed",
