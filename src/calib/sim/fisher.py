@@ -166,28 +166,77 @@ def _effect_columns(cfg: dict, sim, clean, eid: str, params: dict, temperature):
     return names, cols
 
 
-def _nuisance_columns(sim, clean):
-    """Derivatives of N dt = (K E x + b) dt with respect to K, the off-diagonal E and b of both triads."""
+class ChannelColumns:
+    """Derivative columns (of ``n`` samples, six channels) held by channel: ``by_channel[c]`` the ``(column index,
+    samples (n,))`` of the columns that are not all zero in channel ``c``, in column order; ``p`` the number of
+    columns. A base parameter's derivative touches one channel only: held this way its 24 columns take a sixth of
+    the memory of (n, 6) arrays, and the per-channel blocks the informations are built from (:meth:`block`) are
+    stacked from them directly, with the values and layout of a stack of the (n, 6) columns' channel."""
+
+    def __init__(self, n: int, p: int, by_channel):
+        self.n, self.p = int(n), int(p)
+        self.by_channel = [list(b) for b in by_channel]
+
+    @classmethod
+    def from_columns(cls, cols, copy: bool = False) -> "ChannelColumns":
+        """The columns ``cols`` (list of (n, 6)) by channel: views of them, or with ``copy`` contiguous copies of
+        the channels they touch (the (n, 6) arrays can then be dropped)."""
+        take = (lambda v: np.ascontiguousarray(v)) if copy else (lambda v: v)
+        by = [[(k, take(col[:, c])) for k, col in enumerate(cols) if np.any(col[:, c] != 0.0)] for c in range(6)]
+        return cls(cols[0].shape[0] if cols else 0, len(cols), by)
+
+    def __add__(self, other: "ChannelColumns") -> "ChannelColumns":
+        """The columns of ``self`` then those of ``other``."""
+        return ChannelColumns(self.n, self.p + other.p,
+                              [a + [(self.p + k, v) for k, v in b] for a, b in zip(self.by_channel, other.by_channel)])
+
+    def block(self, c: int):
+        """(indices of the columns that touch channel ``c``, their samples there stacked (n, p_c)); ([], None)
+        when none does."""
+        use = [k for k, _ in self.by_channel[c]]
+        if not use:
+            return use, None
+        return use, np.stack([v for _, v in self.by_channel[c]], axis=1)
+
+
+def as_channel_columns(cols) -> ChannelColumns:
+    """``cols`` (a list of (n, 6) columns, or already :class:`ChannelColumns`) by channel."""
+    return cols if isinstance(cols, ChannelColumns) else ChannelColumns.from_columns(cols)
+
+
+def _nuisance_channels(sim, clean):
+    """Derivatives of N dt = (K E x + b) dt with respect to K, the off-diagonal E and b of both triads (names, the
+    columns by channel, :class:`ChannelColumns`): each touches the one channel of its parameter's axis."""
     dt = 1.0 / float(sim.sample_rate_hz)
     n = len(clean)
-    cols, names = [], []
+    names, by = [], [[] for _ in range(6)]
+
+    def add(name, c, v):
+        if np.any(v != 0.0):
+            by[c].append((len(names), v))
+        names.append(name)
+
     for t, (model, sl) in enumerate(((sim.accel, slice(0, 3)), (sim.gyro, slice(3, 6)))):
         x = model.inverse(clean[:, sl] / dt)
         y = x @ model.E.T
         tri = "accel" if t == 0 else "gyro"
         for i in range(3):
             c = sl.start + i
-            d = np.zeros((n, 6))
-            d[:, c] = y[:, i] * dt
-            cols.append(d); names.append(f"{tri}.K[{AXES[i]}]")
+            add(f"{tri}.K[{AXES[i]}]", c, y[:, i] * dt)
             for j in range(3):
                 if j != i:
-                    d = np.zeros((n, 6))
-                    d[:, c] = model.K[i] * x[:, j] * dt
-                    cols.append(d); names.append(f"{tri}.E[{AXES[i]},{AXES[j]}]")
-            d = np.zeros((n, 6))
-            d[:, c] = dt
-            cols.append(d); names.append(f"{tri}.b[{AXES[i]}]")
+                    add(f"{tri}.E[{AXES[i]},{AXES[j]}]", c, model.K[i] * x[:, j] * dt)
+            add(f"{tri}.b[{AXES[i]}]", c, np.full(n, dt))
+    return names, ChannelColumns(n, len(names), by)
+
+
+def _nuisance_columns(sim, clean):
+    """The columns of :func:`_nuisance_channels` as (n, 6) arrays (zero outside their channel)."""
+    names, ch = _nuisance_channels(sim, clean)
+    cols = [np.zeros((ch.n, 6)) for _ in names]
+    for c, b in enumerate(ch.by_channel):
+        for k, v in b:
+            cols[k][:, c] = v
     return names, cols
 
 
@@ -200,24 +249,24 @@ def _weights(n: int, S) -> np.ndarray:
     return wts[None, :] / (n * np.asarray(S))
 
 
-def _spectra(cols, c: int):
+def _spectra(cols: ChannelColumns, c: int):
     """(indices of the columns that touch channel ``c``, their rfft (nf, p_c) in that channel)."""
-    use = [k for k in range(len(cols)) if np.any(cols[k][:, c] != 0.0)]
-    if not use:
-        return use, None
-    return use, np.fft.rfft(np.stack([cols[k][:, c] for k in use], axis=1), axis=0)
+    use, D = cols.block(c)
+    return use, None if D is None else np.fft.rfft(D, axis=0)
 
 
 def information(cols, S, fixed=None) -> np.ndarray:
-    """Whittle Fisher information of columns ``cols`` (list of (n, 6)) under the per-channel spectra ``S``.
-    ``fixed``: columns appended after ``cols`` given by their per-channel spectra (:func:`_nuisance_spectra`)."""
-    n = cols[0].shape[0] if cols else fixed["n"]
-    P = len(cols)
+    """Whittle Fisher information of columns ``cols`` (list of (n, 6), or :class:`ChannelColumns`) under the
+    per-channel spectra ``S``. ``fixed``: columns appended after ``cols`` given by their per-channel spectra
+    (:func:`_nuisance_spectra`)."""
+    cols = as_channel_columns(cols)
+    n = cols.n if cols.p else fixed["n"]
+    P = cols.p
     Pn = 0 if fixed is None else fixed["p"]
     J = np.zeros((P + Pn, P + Pn))
     W = _weights(n, S)
     for c in range(6):
-        use, F = _spectra(cols, c) if cols else ([], None)
+        use, F = _spectra(cols, c) if P else ([], None)
         if fixed is not None and fixed["use"][c]:
             fu = [P + k for k in fixed["use"][c]]
             F = fixed["F"][c] if F is None else np.concatenate([F, fixed["F"][c]], axis=1)
@@ -232,15 +281,17 @@ def information(cols, S, fixed=None) -> np.ndarray:
 _NUISANCE: dict = {}
 
 
-def _nuisance_spectra(sim, clean) -> dict:
-    """The base model's 24 nuisance columns (:func:`_nuisance_columns`) as per-channel spectra, kept for the last
-    noise-free session (by content and unit): the single-effect sessions of the proof share them."""
+def _nuisance_spectra(sim, clean, channels=None) -> dict:
+    """The base model's 24 nuisance columns (:func:`_nuisance_channels`) as per-channel spectra, kept for the last
+    noise-free session (by content and unit): the single-effect sessions of the proof share them. ``channels``:
+    those columns (``(names, ChannelColumns)`` of :func:`_nuisance_channels` for ``sim`` and ``clean``) when the
+    caller has them already."""
     key = physical.signal_key(sim, clean)
     if key not in _NUISANCE:
         _NUISANCE.clear()
-        names, cols = _nuisance_columns(sim, clean)
+        names, cols = channels if channels is not None else _nuisance_channels(sim, clean)
         spec = [_spectra(cols, c) for c in range(6)]
-        _NUISANCE[key] = {"n": len(clean), "p": len(cols), "names": names, "use": [u for u, _ in spec],
+        _NUISANCE[key] = {"n": len(clean), "p": cols.p, "names": names, "use": [u for u, _ in spec],
                           "F": [F for _, F in spec]}
     return _NUISANCE[key]
 
@@ -291,8 +342,9 @@ def bounds(cfg: dict, effect_id: str, params: dict | None = None, sim=None, clea
 
 
 def information_exact(cols, sim) -> np.ndarray | None:
-    """Fisher information of the columns ``cols`` (list of (n, 6)) under the exact covariance of the simulator's
-    noise over the n samples (not Whittle's periodic approximation, :func:`information`): per channel
+    """Fisher information of the columns ``cols`` (list of (n, 6), or :class:`ChannelColumns`) under the exact
+    covariance of the simulator's noise over the n samples (not Whittle's periodic approximation,
+    :func:`information`): per channel
     ``D^T Sigma^-1 D`` with ``Sigma = R + Q``, R the white noise and the pulse counter's carried remainder
     (tridiagonal: ``sigma_w^2 + 1/6`` on the diagonal, ``-1/12`` beside it) and Q the stationary first-order
     Gauss-Markov bias (``v a^|i-j|``, whose inverse T is tridiagonal), so that ``Sigma^-1 = T (R T + I)^-1`` is
@@ -302,18 +354,18 @@ def information_exact(cols, sim) -> np.ndarray | None:
     nz = sim.noise
     if nz["bias_model"] != "gauss_markov":
         return None
-    n = cols[0].shape[0]
+    cols = as_channel_columns(cols)
+    n = cols.n
     dt = 1.0 / float(sim.sample_rate_hz)
     K = np.concatenate([sim.accel.K, sim.gyro.K])
     sig_w, sig_b, tau = noise_terms(nz, dt)
-    P = len(cols)
+    P = cols.p
     J = np.zeros((P, P))
     q = 1.0 if nz["quantize"] else 0.0
     for c in range(6):
-        use = [k for k in range(P) if np.any(cols[k][:, c] != 0.0)]
+        use, D = cols.block(c)
         if not use:
             continue
-        D = np.stack([cols[k][:, c] for k in use], axis=1)
         R = sparse.diags([np.full(n - 1, -q / 12.0), np.full(n, (K[c] * sig_w[c]) ** 2 + q / 6.0),
                           np.full(n - 1, -q / 12.0)], [-1, 0, 1], format="csr")
         v = (K[c] * dt * sig_b[c]) ** 2
@@ -336,4 +388,5 @@ def information_exact(cols, sim) -> np.ndarray | None:
         if post is not None:
             X = post @ X
         J[np.ix_(use, use)] += D.T @ X
+        del D, X    # before the next channel's (peak memory)
     return J

@@ -53,9 +53,10 @@ POWER = 0.8
 
 
 def _columns(cfg: dict, sim, clean, effect_id: str, params: dict, temperature):
-    """(effect parameter names, their derivative columns (n, 6) each, the nuisance columns): the columns of
-    :func:`calib.sim.fisher.information_for`, plus a column per shape parameter of :data:`PROFILED_SHAPES`
-    (central differences of the physical path) whose effect is not zero."""
+    """(effect parameter names, their derivative columns by channel, the nuisance columns' names and columns by
+    channel; :class:`calib.sim.fisher.ChannelColumns`): the columns of :func:`calib.sim.fisher.information_for`,
+    plus a column per shape parameter of :data:`PROFILED_SHAPES` (central differences of the physical path) whose
+    effect is not zero."""
     cfg = copy.deepcopy(cfg)
     cfg["effects"] = {k: v for k, v in (cfg.get("effects") or {}).items() if k != effect_id}
     full = sim_effects.resolve({effect_id: params or {}})[effect_id]
@@ -69,15 +70,14 @@ def _columns(cfg: dict, sim, clean, effect_id: str, params: dict, temperature):
         if np.any(d != 0.0):     # a warm-up of zero size: its time constant is not a parameter of the data
             ecols.append(d)
             enames.append(key)
-    _, ncols = sim_fisher._nuisance_columns(sim, clean)
-    return enames, ecols, ncols
+    return enames, sim_fisher.ChannelColumns.from_columns(ecols, copy=True), sim_fisher._nuisance_channels(sim, clean)
 
 
 def reduced_information(cols, sim, geom, n_effect: int | None = None) -> np.ndarray | None:
     """Fisher information of the window reductions of geometry ``geom`` (:func:`calib.diagnosis.geometry.
     build_geometry`: static means, rotation means and gyro harmonics) about the parameters of the per-sample
-    derivative columns ``cols`` (list of (n, 6)) under the noise of simulator ``sim``: per channel
-    ``Dr^T Sr^-1 Dr``, ``Dr = W^T D``, ``Sr = W^T Sigma W`` with Sigma the exact stationary covariance
+    derivative columns ``cols`` (list of (n, 6), or :class:`calib.sim.fisher.ChannelColumns`) under the noise of
+    simulator ``sim``: per channel ``Dr^T Sr^-1 Dr``, ``Dr = W^T D``, ``Sr = W^T Sigma W`` with Sigma the exact stationary covariance
     (:func:`calib.diagnosis.bound.reduction_covariance`; no circulant approximation: for effects as slow as the
     session, the circulant form wraps the end of the bias instability onto its start and overstates the
     information severalfold).
@@ -89,20 +89,29 @@ def reduced_information(cols, sim, geom, n_effect: int | None = None) -> np.ndar
     dt = 1.0 / float(sim.sample_rate_hz)
     sig_w, sig_b, tau = noise_terms(nz, dt)
     K = np.concatenate([sim.accel.K, sim.gyro.K])
-    n_effect = len(cols) if n_effect is None else int(n_effect)
-    p = len(cols)
+    cols = sim_fisher.as_channel_columns(cols)
+    p = cols.p
+    n_effect = p if n_effect is None else int(n_effect)
     J = np.zeros((p, p))
     for c in range(6):
         sensor = SENSORS[c // 3]
-        D = np.stack([col[:, c] for col in cols], axis=1)
-        use = np.flatnonzero(np.any(D != 0.0, axis=0))
-        if use.size == 0 or not np.any(D[:, :n_effect] != 0.0):
+        use = [k for k, _ in cols.by_channel[c]]
+        if not use or use[0] >= n_effect:
             # a channel the effect does not touch informs only its own base parameters (each channel has its
             # own scale, misalignments and bias): it leaves the effect's bounds as they are and is skipped
             continue
+        D = cols.block(c)[1]                  # (n, p_c): the columns that touch channel c
         rows = [(w.i0, w.i1, np.ascontiguousarray(w.W[:, q])) for w in geom.windows
                 for q in range(rows_of(sensor, w))]
-        Dr = np.array([wq @ D[i0:i1, use] for i0, i1, wq in rows])          # (m, p_c)
+        every = np.arange(D.shape[1])
+        Dr, Dw, at = [], None, None
+        for i0, i1, wq in rows:               # a window's samples copied once for all its rows
+            if at != (i0, i1):
+                # by an index array: the column-major copy whose products keep the summation order they have
+                Dw, at = D[i0:i1, every], (i0, i1)
+            Dr.append(wq @ Dw)
+        Dr = np.array(Dr)                     # (m, p_c)
+        del D, Dw
         Sr = _reduction_covariance(rows, float((K[c] * sig_w[c]) ** 2), float((K[c] * dt * sig_b[c]) ** 2),
                                    math.exp(-dt / float(tau[c])), bool(nz["quantize"]))
         A = np.linalg.solve(np.linalg.cholesky(Sr), Dr)
@@ -139,15 +148,17 @@ def information_pair(cfg: dict, effect_id: str, params: dict | None, sim, clean,
     the informations with the 24 base parameters after them (``extended``: the windows and the samples outside them
     as :data:`OUTSIDE_MEAN_S` means, :func:`extended_windows`; all but ``stream`` None for a random-walk bias), the number of the diagnosis's observations, the shape parameters
     among the names."""
-    enames, ecols, ncols = _columns(cfg, sim, clean, effect_id, params or {}, temperature)
+    enames, ecols, nuisance = _columns(cfg, sim, clean, effect_id, params or {}, temperature)
     geom = build_geometry(template)
-    return {"names": enames,
-            # Whittle's, as calib.sim.fisher.information_for computes it (its base columns' spectra kept per session)
-            "stream": sim_fisher.information(ecols, sim_fisher.noise_spectrum(sim, len(clean)),
-                                             fixed=sim_fisher._nuisance_spectra(sim, clean)),
-            "exact": sim_fisher.information_exact(ecols + ncols, sim),
-            "reduced": reduced_information(ecols + ncols, sim, geom, len(ecols)),
-            "extended": reduced_information(ecols + ncols, sim, extended_windows(geom), len(ecols)),
+    # Whittle's, as calib.sim.fisher.information_for computes it (its base columns' spectra kept per session)
+    stream = sim_fisher.information(ecols, sim_fisher.noise_spectrum(sim, len(clean)),
+                                    fixed=sim_fisher._nuisance_spectra(sim, clean, nuisance))
+    cols = ecols + nuisance[1]
+    del nuisance
+    return {"names": enames, "stream": stream,
+            "exact": sim_fisher.information_exact(cols, sim),
+            "reduced": reduced_information(cols, sim, geom, ecols.p),
+            "extended": reduced_information(cols, sim, extended_windows(geom), ecols.p),
             "n_obs": int(geom.obs["n"]),
             "shapes": [nm for nm in enames if nm in PROFILED_SHAPES.get(effect_id, ())]}
 
