@@ -105,19 +105,24 @@ def pytest_workers(rest):
     return ["-n", n, "--dist", "loadfile", "--no-loadscope-reorder"]
 
 
+def lazy_bytecode():
+    """Byte code for the study and the tests: pip would compile all ~11 000 modules of a fresh environment one after
+    the other (two thirds of the install's time); a run imports a third of them. So pip does not compile, and every
+    process writes the cache of a module when it first imports it (PYTHONDONTWRITEBYTECODE, if set, is lifted), in
+    parallel, the calib sources included."""
+    os.environ.setdefault("PIP_COMPILE", "0")
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
+
 def main(argv):
     verb = argv[0] if argv else "help"
     rest = argv[1:]
     if verb == "study":
+        lazy_bytecode()
         env = setup()
         sh(BIN / "snakemake", "--profile", "workflow/profiles/default", *rest, env=env)
     elif verb == "test":
-        # Byte code: pip would compile all ~11 000 modules of a fresh environment one after the other (two thirds of
-        # the install's time); the tests import a third of them. So pip does not compile here, and every process
-        # writes the cache of a module when it first imports it (PYTHONDONTWRITEBYTECODE, if set, is lifted), in
-        # parallel, the calib sources included.
-        os.environ.setdefault("PIP_COMPILE", "0")
-        os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+        lazy_bytecode()
         env = setup()
         # beside the tests: the small workflow, its lint, the CF check of its products, the docs (_chain below)
         chain = Beside("the .test workflow, its lint, the CF check of its products and the docs build",
