@@ -124,6 +124,26 @@ def test_geometry_reuse_gives_the_reports_of_a_fresh_set_up(tmp_path):
     assert json.dumps(reused, sort_keys=True) == json.dumps(fresh, sort_keys=True)   # NaN entries compare equal
 
 
+def test_power_scan_after_its_session_reuses_it_and_equals_a_fresh_scan(tmp_path, monkeypatch):
+    """A single-effect session's power scan run right after the session in one process (the workflow's job:
+    proof_session, then power_scan) builds no simulator of its own: it takes the session's template, simulator,
+    clean signal and geometry. Its rows are those of a scan that builds them from scratch."""
+    built = []
+    real = diagnosis_proof.sim_session.build_calibration_simulator
+    monkeypatch.setattr(diagnosis_proof.sim_session, "build_calibration_simulator",
+                        lambda *a, **k: built.append(1) or real(*a, **k))
+    strip = lambda res: json.dumps([{k: ([{c: v for c, v in row.items() if c != "elapsed_s"} for row in x[k]]
+                                         if k == "rows" else x[k]) for k in x if k not in ("t_build_s", "t_total_s")}
+                                    for x in res], sort_keys=True)
+    r = diagnosis_proof.proof_session("time_offset", tmp_path / "part", 2, 7, base=SHORT)
+    assert len(built) == 1
+    after = diagnosis_proof.power_scan(r, 2, 7, base=SHORT)
+    assert len(built) == 1 and len(after) >= 2                # the session's simulator, no build of its own
+    fresh = diagnosis_proof.power_scan(r, 2, 7, base=SHORT)    # nothing kept now: built from scratch
+    assert len(built) == 2
+    assert strip(after) == strip(fresh)
+
+
 def test_skipping_absent_bounds_and_detail_changes_nothing_else(tmp_path):
     """The proof's per-seed runs skip the upper bounds of absent terms and the report's detail (where the misfit
     lies, absorbed fractions, angles of pairs without a found term, separations, the size of generic structures

@@ -219,6 +219,14 @@ def noise_store(folder):
 
 
 
+#: whether :func:`_proof_worker` keeps its single-effect session for :func:`power_scan` (on in :func:`proof_session`)
+_KEEP_SESSION = [False]
+#: ``[(name, settings, FastSession, its first seed's Problem or None)]`` of the last session :func:`proof_session`
+#: ran: the template, simulator, clean signal and geometry its power scan shares (they do not depend on the
+#: effect's size)
+_KEPT_SESSION: list = []
+
+
 def clear_shared_noise():
     """Forget the noise increments kept by :func:`shared_noise`."""
     _NOISE.clear()
@@ -281,7 +289,9 @@ def _proof_worker(args):
         # so the first seed reuses the end-to-end set-up's instead of building it again: the same numbers
         # (tests/diagnosis/test_diagnosis_proof.py), ~0.4 s less a session
         geom_from = prob_e2e if prob_e2e is not None and prob_e2e.kind == "vector" else None
-        rows, _ = _seed_rows(fsn, name, kind, seed_list, st, fig, geometry_from=geom_from)
+        rows, prob0 = _seed_rows(fsn, name, kind, seed_list, st, fig, geometry_from=geom_from)
+    if _KEEP_SESSION[0] and kind == "single":   # for its power scan in this process (power_scan)
+        _KEPT_SESSION[:] = [(name, settings, fsn, prob0 if prob0 is not None and prob0.kind == "vector" else None)]
     fisher_bounds = None
     if infos is not None:
         # every size parameter free, and only those the diagnosis estimated free (the others held at their truth:
@@ -321,15 +331,23 @@ def _seed_rows(fsn: FastSession, name: str, kind: str, seed_list, st: dict, fig=
     return rows, prob0
 
 
-def _power_worker(args):
+def _power_worker(args, kept_session: bool = False):
     """The detection-power scan of one session: every scale over its seeds (runs in a worker process). The
     template, simulator and clean signal are built once and shared by the scales (:class:`FastSession`
-    ``base_of``); each scale's library is built at its own first seed, as in :func:`_proof_worker`."""
+    ``base_of``); each scale's library is built at its own first seed, as in :func:`_proof_worker`.
+    ``kept_session``: take the session's own run in this process (:data:`_KEPT_SESSION`), whose template,
+    simulator, clean signal and geometry the scales then reuse instead of building them again (where
+    :meth:`FastSession.reusable_for`)."""
     name, seed_list, settings, scales, effs, base, injection, template_seed = args
     kind = PROOF_SESSIONS[name][0]
     st = {**DEFAULT_SETTINGS, **(settings or {}), "figures": False, "absent_bounds": False,
               "report_detail": False}   # not scored
     out, prev, prob_prev = [], None, None
+    if kept_session and _KEPT_SESSION and _KEPT_SESSION[-1][0] == name:
+        _, kept_settings, prev, prob_prev = _KEPT_SESSION.pop()   # its Problem dropped once the first scale has one
+        if kept_settings != settings:    # its geometry was built with other settings
+            prob_prev = None
+    _KEPT_SESSION.clear()
     with tempfile.TemporaryDirectory(prefix="calib-power-") as tmp:
         for sc, eff in zip(scales, effs):
             t0 = time.perf_counter()
@@ -559,11 +577,14 @@ def proof_session(name: str, out_dir, n_seeds: int, seed: int, settings=None, ba
         raise ValueError(f"diagnosis.proof.sessions: unknown session {name!r}; known: {list(PROOF_SESSIONS)}")
     _one_thread_blas()
     _NOISE_KEEP[0] = False    # one session: no other session here to share its seeds' noise with (1.3 GB saved)
+    _KEEP_SESSION[0] = True
+    _KEPT_SESSION.clear()
     try:
         with noise_store(store):
             return _proof_worker(_session_job(name, n_seeds, seed, Path(out_dir), settings, base, injection))
     finally:
         _NOISE_KEEP[0] = True
+        _KEEP_SESSION[0] = False
         clear_shared_noise()
 
 
@@ -574,12 +595,16 @@ def power_scan(r: dict, power_seeds: int, seed: int, settings=None, base: dict |
     _check_injection(injection)
     pj = _power_job(dict(r), power_scales, power_seeds, seed, settings, base, injection)
     if pj is None:
+        _KEPT_SESSION.clear()
         return []
     _one_thread_blas()
     try:
         with noise_store(store):
-            return _power_worker(pj)   # its seeds' noise is kept for its scales, as in run_proof's workers
+            # its seeds' noise is kept for its scales, as in run_proof's workers; the session's own run just
+            # before in this process (proof_session) lends its template, simulator, clean signal and geometry
+            return _power_worker(pj, kept_session=True)
     finally:
+        _KEPT_SESSION.clear()
         clear_shared_noise()
 
 
