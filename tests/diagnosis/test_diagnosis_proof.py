@@ -142,6 +142,17 @@ def test_power_scan_after_its_session_reuses_it_and_equals_a_fresh_scan(tmp_path
     fresh = diagnosis_proof.power_scan(r, 2, 7, base=SHORT)    # nothing kept now: built from scratch
     assert len(built) == 2
     assert strip(after) == strip(fresh)
+    # with a noise store the scan holds no seed's noise in memory: each scale reads it back from the store
+    held = []
+    real_rows = diagnosis_proof._seed_rows
+    monkeypatch.setattr(diagnosis_proof, "_seed_rows",
+                        lambda *a, **k: held.append(len(diagnosis_proof._NOISE)) or real_rows(*a, **k))
+    (tmp_path / "noise").mkdir()
+    stored = diagnosis_proof.power_scan(r, 2, 7, base=SHORT, store=tmp_path / "noise")
+    assert len(held) == len(stored) >= 2 and set(held) == {0}
+    # its 2 seeds, and the template seed with which its session's end-to-end file is written
+    assert len(list((tmp_path / "noise").glob("*.npy"))) == 3
+    assert strip(stored) == strip(fresh)
 
 
 def test_skipping_absent_bounds_and_detail_changes_nothing_else(tmp_path):

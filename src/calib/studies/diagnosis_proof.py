@@ -598,12 +598,16 @@ def power_scan(r: dict, power_seeds: int, seed: int, settings=None, base: dict |
         _KEPT_SESSION.clear()
         return []
     _one_thread_blas()
+    # its seeds' noise is kept for its scales, as in run_proof's workers, unless a store holds it: each scale then
+    # reads it back from there (the same samples, a few ms a seed) and the 20 seeds' 250 MB are not held
+    _NOISE_KEEP[0] = store is None
     try:
         with noise_store(store):
-            # its seeds' noise is kept for its scales, as in run_proof's workers; the session's own run just
-            # before in this process (proof_session) lends its template, simulator, clean signal and geometry
+            # the session's own run just before in this process (proof_session) lends its template, simulator,
+            # clean signal and geometry
             return _power_worker(pj, kept_session=True)
     finally:
+        _NOISE_KEEP[0] = True
         _KEPT_SESSION.clear()
         clear_shared_noise()
 
