@@ -146,20 +146,31 @@ class ProofBase:
         return None
 
     # ---------------------------------------------------------------------------------------------------------
+    def _blocks(self, block_s: float) -> list:
+        """Per static segment: where it lies (a slice when its samples are contiguous), its length m, the block
+        length L, the number of blocks, the offsets 0..L-1, the segment mean and the noise about it -- what every
+        repetition of :meth:`resample` starts from (the untouched readings' own, computed once per block length)."""
+        cache = self.__dict__.setdefault("_block_cache", {})
+        if block_s not in cache:
+            L0 = max(1, int(round(block_s * self.fs)))
+            out = []
+            for idx in self.segments:
+                m = idx.size
+                L = max(1, min(L0, m // 4))
+                seg = self.y[idx]
+                mean = seg.mean(axis=0)
+                where = slice(int(idx[0]), int(idx[-1]) + 1) if idx[-1] - idx[0] == m - 1 else idx
+                out.append((where, m, L, -(-m // L), np.arange(L)[None, :], mean, seg - mean))
+            cache[block_s] = out
+        return cache[block_s]
+
     def resample(self, rng, block_s: float = 1.0) -> np.ndarray:
         """Readings (n, 3) with every static segment's noise replaced by a circular block bootstrap of itself."""
         y = self.y.copy()
-        L0 = max(1, int(round(block_s * self.fs)))
-        for idx in self.segments:
-            m = idx.size
-            L = max(1, min(L0, m // 4))
-            seg = self.y[idx]
-            mean = seg.mean(axis=0)
-            e = seg - mean
-            nb = -(-m // L)
+        for where, m, L, nb, offsets, mean, e in self._blocks(block_s):
             starts = rng.integers(0, m, size=nb)
-            take = ((starts[:, None] + np.arange(L)[None, :]) % m).reshape(-1)[:m]
-            y[idx] = mean + e[take]
+            take = ((starts[:, None] + offsets) % m).reshape(-1)[:m]
+            y[where] = mean + e[take]
         return y
 
     def inject(self, y: np.ndarray, spec: dict) -> np.ndarray:
@@ -196,9 +207,11 @@ class ProofBase:
         return ds
 
     def diagnose(self, y: np.ndarray, label: str):
-        # the upper bounds of absent terms are read from the baseline only (baseline_value), not from a repetition
+        # the upper bounds of absent terms are read from the baseline only (baseline_value), not from a repetition;
+        # the geometry is the baseline's (only the accelerometer samples differ: :meth:`dataset`)
+        shared = self.prob if self.prob is not None and self.prob.kind == "norm" else None
         rep, _ = diagnose_dataset(self.dataset(y), None, {**self.settings, "absent_bounds": False},
-                                  path=f"{self.name} {label}", library_from=None)
+                                  path=f"{self.name} {label}", library_from=None, geometry_from=shared)
         return rep
 
 

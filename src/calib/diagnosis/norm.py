@@ -37,14 +37,18 @@ _UNIT_PARAMS: dict = {}
 
 
 def _unit_params(eid, key, e, tau=None) -> dict:
-    """The zeroed registry defaults of ``eid`` (:func:`zero_params`) with element ``e`` of ``key`` set to 1 (and,
-    for the bias drift's warm-up, ``accel_tau_s = tau``). One dict per argument tuple, shared: do not modify."""
+    """The zeroed registry defaults of ``eid`` (:func:`zero_params`) with element ``e`` of ``key`` set to 1 (every
+    element for ``e = "all"``; and, for the bias drift's warm-up, ``accel_tau_s = tau``). One dict per argument tuple,
+    shared: do not modify."""
     k = (eid, key, e, tau)
     p = _UNIT_PARAMS.get(k)
     if p is None:
         p = zero_params(eid)
         arr = np.zeros(np.shape(effects.REGISTRY[eid].defaults[key]))
-        arr[e] = 1.0
+        if e == "all":
+            arr[...] = 1.0
+        else:
+            arr[e] = 1.0
         p[key] = arr.tolist()
         if tau is not None:
             p["accel_tau_s"] = tau
@@ -64,15 +68,51 @@ def _norm_initial(N, ref):
     return np.linalg.cholesky(MMt), fit.bias
 
 
-def setup_norm_problem(ds, settings=None) -> Problem:
+def _window_nodes(geom):
+    """The evaluation nodes of the norm model's (static) windows, concatenated: their mid-times [s], the window each
+    node belongs to, the node count per window and the temperature at the nodes (None without a temperature
+    channel). Geometry only: computed once per geometry (:meth:`calib.diagnosis.geometry.Geometry.derived`)."""
+    ts, temps, owner = [], [], []
+    for j, w in enumerate(geom.windows):
+        idx = window_nodes(geom, w)
+        ts.append(geom.time_s[w.i0 + idx] + 0.5 * geom.dt)
+        if geom.temperature is not None:
+            temps.append(geom.temperature[w.i0 + idx])
+        owner.append(np.full(idx.size, j))
+    owner = np.concatenate(owner)
+    return np.concatenate(ts), owner, np.bincount(owner), (np.concatenate(temps) if temps else None)
+
+
+#: the library terms whose per-sample value does not depend on the sensor-axis input: the bias drift (a function of
+#: time) and the temperature bias (of the temperature; the input enters its formula only through the scale term,
+#: zero in a bias column: a signed zero, which the window sums do not see). Their window means are the same for
+#: every recording on one geometry.
+_INPUT_FREE = {("bias_drift", "accel_warmup_ug"), ("bias_drift", "accel_trend_ug_per_h"),
+               ("temperature_sensitivity", "accel_bias_ug_per_degC")}
+#: the library terms whose axis i is the size of element i times a function of that axis alone, evaluated element by
+#: element (the registry's formulas): one evaluation with every element 1 holds the three unit terms in its columns,
+#: the same numbers as three evaluations with one element 1
+_SEPARABLE = {("accel_quadratic_nonlinearity", "k2_ug_per_g2"), ("accel_cubic_nonlinearity", "k3_ug_per_g3"),
+              ("accel_scale_asymmetry", "asym_ppm"), ("temperature_sensitivity", "accel_bias_ug_per_degC"),
+              ("temperature_sensitivity", "accel_scale_ppm_per_degC")}
+
+
+def setup_norm_problem(ds, settings=None, *, geometry_from=None) -> Problem:
     """The accelerometer norm model (Liu 2021 eq. 7, lower-triangular form tri9) linearised at its solution:
     observations are the norm residuals r_m = ref^2 - |M^-1 (N_m - b)|^2 of the static means, the base design
     their Jacobian, the effect signatures -2 x^T M^-1 K dd/dphi (x = M^-1 (N - b), sensor-axis input
     y = (N - b)/K, K_i = |row i of M|). Noise: white + quantisation of each mean from the Allan deviation,
     propagated to r; if the base model's reduced chi-square exceeds 2, the sigmas are scaled by its square root
-    (the unexplained scatter is treated as noise) and the report says so."""
+    (the unexplained scatter is treated as noise) and the report says so.
+
+    ``geometry_from``: a previous norm :class:`Problem` of a recording with the same geometry (segment table,
+    time axis, temperature and site; other accelerometer samples, e.g. a resampled repetition of it) whose
+    geometry and what is derived from it alone are reused: the same numbers as a set-up from scratch."""
     st = {**DEFAULT_SETTINGS, **(settings or {})}
-    geom = build_geometry(ds, max_offset_s=0.0, min_static=max(st["min_static"], MIN_POSES_TO_TEST))
+    if geometry_from is not None and geometry_from.kind == "norm":
+        geom = geometry_from.geom
+    else:
+        geom = build_geometry(ds, max_offset_s=0.0, min_static=max(st["min_static"], MIN_POSES_TO_TEST))
     if geom.n_samples / geom.fs < st["min_duration_s"]:
         raise DiagnosisInputError(f"{geom.source}: recording lasts {geom.n_samples / geom.fs:.1f} s, less than "
                                   f"{st['min_duration_s']:.0f} s", "record a longer session")
@@ -118,32 +158,46 @@ def setup_norm_problem(ds, settings=None) -> Problem:
     yin = (Nm - b) / Kd                       # sensor-axis input [model input unit]
     G = -2.0 * np.linalg.solve(M.T, xh.T).T * (Kd * conv)[None, :]   # dr/dd per segment (m, 3), d in g
     # per-window nodes for time-dependent terms
-    ts, temps, owner = [], [], []
-    for j, w in enumerate(wins):
-        idx = window_nodes(geom, w)
-        ts.append(geom.time_s[w.i0 + idx] + 0.5 * geom.dt)
-        if geom.temperature is not None:
-            temps.append(geom.temperature[w.i0 + idx])
-        owner.append(np.full(idx.size, j))
-    t = np.concatenate(ts)
-    owner = np.concatenate(owner)
-    cnt = np.bincount(owner)
+    t, owner, cnt, temp = geom.derived(("norm", "nodes"), lambda: _window_nodes(geom))
     yreg = yin[owner] / conv
-    temp = np.concatenate(temps) if temps else np.full(t.shape, 25.0)
+    temp = temp if temp is not None else np.full(t.shape, 25.0)
+    finite_input = bool(np.all(np.isfinite(yreg)))
     E_id = np.eye(3)
     ctx = effects.SensorContext(t, yreg, np.zeros_like(yreg), yreg, np.zeros_like(yreg), np.zeros_like(yreg),
                                 np.zeros_like(yreg), temp, E_id, E_id)
 
-    def col(eid, p):
-        da, _ = effects.REGISTRY[eid].apply(ctx, p)
-        # per-window sums of the nodes: np.add.at's sums (each in node order from 0), by bincount (the same order)
-        dm = np.empty((len(wins), 3))
+    m = len(wins)
+
+    def window_means(da, only=None):
+        # per-window means of the node terms ``da`` (the columns but ``only`` zero): np.add.at's sums (each in node
+        # order from 0), by bincount (the same order); a column of zeros sums to +0 whatever the signs of its zeros
+        dm = np.empty((m, 3))
         for c in range(3):
-            dm[:, c] = np.bincount(owner, weights=da[:, c], minlength=len(wins))
+            if (only is None or c == only) and da[:, c].any():
+                dm[:, c] = np.bincount(owner, weights=da[:, c], minlength=m)
+            else:
+                dm[:, c] = 0.0
         dm /= cnt[:, None]
+        return dm
+
+    separable = {}
+
+    def unit_means(eid, key, e, tau):
+        if (eid, key) in _SEPARABLE:
+            if (eid, key) not in separable:
+                separable[(eid, key)] = effects.REGISTRY[eid].apply(ctx, _unit_params(eid, key, "all"))[0]
+            return window_means(separable[(eid, key)], e[0])
+        return window_means(effects.REGISTRY[eid].apply(ctx, _unit_params(eid, key, e, tau))[0])
+
+    def col(eid, key, e, tau=None):
+        """Column of the unit term ``(key, e)`` (bias drift: warm-up time constant ``tau``); window means of a term
+        that does not depend on the input (:data:`_INPUT_FREE`) are kept with the geometry."""
+        if (eid, key) in _INPUT_FREE and finite_input:
+            dm = geom.derived(("norm", "window_means", eid, key, e, tau), lambda: unit_means(eid, key, e, tau))
+        else:
+            dm = unit_means(eid, key, e, tau)
         return np.sum(G * dm, axis=1)
 
-    m = len(wins)
     geom.obs = {"sensor": np.zeros(m, int), "axis": np.zeros(m, int), "window": np.arange(m), "row": np.zeros(m, int),
                 "n": m, "blocks": {(0, 0): np.arange(m)}}
     lib = []
@@ -154,7 +208,7 @@ def setup_norm_problem(ds, settings=None) -> Problem:
             entries = ([(i,) for i in range(3)] if kind == "vec" else
                        [(i, j) for i in range(3) for j in range(3) if i != j])
             for e in entries:
-                cols.append(col(eid, _unit_params(eid, key, e)))
+                cols.append(col(eid, key, e))
                 names.append(key + "[" + ",".join(AXES[i] for i in e) + "]")
                 units.append(effects.REGISTRY[eid].units.get(key, ""))
                 axes_.append(AXES[e[0]])
@@ -172,11 +226,11 @@ def setup_norm_problem(ds, settings=None) -> Problem:
                      + [("accel_trend_ug_per_h", (i,)) for i in range(3)])
     trend = []
     for i in range(3):
-        trend.append(col("bias_drift", _unit_params("bias_drift", "accel_trend_ug_per_h", (i,))))
+        trend.append(col("bias_drift", "accel_trend_ug_per_h", (i,)))
     for tau in DRIFT_TAUS:
         cols = []
         for i in range(3):
-            cols.append(col("bias_drift", _unit_params("bias_drift", "accel_warmup_ug", (i,), tau)))
+            cols.append(col("bias_drift", "accel_warmup_ug", (i,), tau))
         c.S_by_tau[tau] = np.column_stack(cols + trend)
     c.S = c.S_by_tau[900.0]
     lib.append(c)

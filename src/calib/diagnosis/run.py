@@ -41,7 +41,8 @@ def diagnose(recording_or_dataset, settings=None, *, out_dir=None, path: str = "
 def diagnose_dataset(ds, out_dir=None, settings=None, *, path="", library_from=None, geometry_from=None):
     """Diagnose an in-memory recording. Returns (report dict, Problem or None). Writes files when
     ``out_dir`` is given. ``library_from`` / ``geometry_from``: a previous Problem on the same geometry whose
-    library / geometry is reused (:func:`calib.diagnosis.vector.setup_problem`)."""
+    library / geometry is reused (:func:`calib.diagnosis.vector.setup_problem`; a norm recording reuses the
+    geometry alone, :func:`calib.diagnosis.norm.setup_norm_problem`)."""
     st = settings_of(settings)
     t0 = time.perf_counter()
     # the figures and the two reports appear together or not at all (an interruption between them left figures
@@ -63,7 +64,7 @@ def _diagnose_dataset(ds, out_dir, st, path, library_from, geometry_from=None):
         if "nominal_attitude" in ds or (library_from is not None and library_from.kind == "vector"):
             prob = setup_problem(ds, st, library_from=library_from, geometry_from=geometry_from)
         else:
-            prob = setup_norm_problem(ds, st)
+            prob = setup_norm_problem(ds, st, geometry_from=geometry_from)
         rank = np.linalg.matrix_rank(prob.whiten(prob.X0))
         if rank < prob.X0.shape[1]:
             raise DiagnosisInputError(f"the base calibration failed: its design has rank {rank} of "
