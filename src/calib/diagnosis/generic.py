@@ -170,14 +170,19 @@ def norm_periodic_columns(prob: Problem):
     ng = prob.norm_generic
     if prob.kind != "norm" or ng is None:
         return []
-    t = np.asarray(ng["t"], float)
+    # the segments' mid-times are the geometry's: their sines and cosines are computed once per geometry
+    waves = prob.geom.derived(("norm", "periodic_waves"), lambda: _periodic_waves(ng["t"]))
+    G = ng["G"]
+    return [(i, k, np.column_stack([G[:, i] * sn, G[:, i] * cs])) for i in range(3) for k, sn, cs in waves]
+
+
+def _periodic_waves(t):
+    """``[(k, sin(k phase), cos(k phase))]`` over :data:`NORM_PERIODS` at the times ``t``, phase
+    2 pi (t - t_0) / span."""
+    t = np.asarray(t, float)
     span = max(float(np.ptp(t)), 1e-9)
     ph = 2.0 * math.pi * (t - t.min()) / span
-    out = []
-    for i in range(3):
-        for k in NORM_PERIODS:
-            out.append((i, k, np.column_stack([ng["G"][:, i] * np.sin(k * ph), ng["G"][:, i] * np.cos(k * ph)])))
-    return out
+    return [(k, np.sin(k * ph), np.cos(k * ph)) for k in NORM_PERIODS]
 
 
 def _vector_step_tests(prob: Problem, final: Fit, L, Q, r_perp) -> list[dict]:
@@ -397,14 +402,99 @@ def _rival_columns_unit(prob: Problem, kind, sensor):
 def _bic_with(prob: Problem, f0: Fit, S: np.ndarray, base=None) -> tuple[float, float]:
     """chi-square and BIC of the fit ``f0`` with the columns ``S`` added (GLS on the problem's noise).
     ``base``: :func:`_whitened_base` of ``f0`` when many column sets are tried against the same fit."""
+    return _bic_with_whitened(prob, f0, prob.whiten(S), base)
+
+
+def _bic_with_whitened(prob: Problem, f0: Fit, Sw: np.ndarray, base=None) -> tuple[float, float]:
+    """:func:`_bic_with` of the columns whitened already (``Sw``)."""
     Xw, r0 = base if base is not None else _whitened_base(prob, f0)
-    A = np.hstack([Xw, prob.whiten(S)])
+    A = np.hstack([Xw, Sw])
     yw = prob.wcache("y", lambda: prob.y)
     coef, _, rank, _ = np.linalg.lstsq(A, yw, rcond=None)   # rank: singular values > max(m, n) eps s_max, as
     r = yw - A @ coef                                           # numpy.linalg.matrix_rank counts them
     chi2 = float(r @ r)
     extra = int(rank) - r0
     return chi2, chi2 + (f0.k + extra) * math.log(prob.n)
+
+
+#: a rival set is solved by lstsq in any case when a lower bound of the smallest singular value of [design, columns]
+#: is below this fraction of their Frobenius norm (lstsq's rank cut is max(m, n) eps of the largest)
+_SAFE_SV = 1e-10
+#: the chi-square found by projection and lstsq's are taken to lie within this times (1 + the condition number bound)
+#: times the whitened data's sum of squares of each other (a backward-stable least-squares residual moves by about
+#: eps (1 + 2 kappa) |y|; this is some 4500 eps: room for the size of the problem)
+_CHI2_REL = 1e-12
+
+
+def _best_rival(prob: Problem, f0: Fit, base, cands) -> tuple[str, float, float]:
+    """``(name, chi2, BIC)`` of the smallest BIC over the rival column sets ``cands`` = ``[(name, Sw, extra)]``
+    (whitened columns; ``extra``: BIC added for a scanned parameter, or None): what the first smallest of
+    :func:`_bic_with_whitened` over every set is. Only the sets that can be smallest are solved by lstsq: every
+    set's BIC is first found by projection within a tolerance (:func:`_projected_bics`), and a set whose BIC so found
+    lies, less its tolerance, above the smallest BIC plus tolerance of any set cannot be smallest (lstsq's values of
+    the others are the result: the same numbers). A set whose rank the projection cannot vouch for is solved by
+    lstsq; when lstsq's BIC of a set lies outside the projection's tolerance, every set is."""
+    def solved(j):
+        name, Sw, extra = cands[j]
+        chi2, bic = _bic_with_whitened(prob, f0, Sw, base)
+        return name, chi2, bic if extra is None else bic + extra
+
+    def smallest(js):
+        return min((solved(j) for j in js), key=lambda c: c[2])
+
+    every = range(len(cands))
+    proj = _projected_bics(prob, f0, base, cands)
+    if proj is None:
+        return smallest(every)
+    bic, tol, safe = proj
+    top = float(np.min((bic + tol)[safe])) if safe.any() else math.inf
+    pick = [j for j in every if not safe[j] or bic[j] - tol[j] <= top]
+    got = [solved(j) for j in pick]
+    if any(safe[j] and not abs(g[2] - bic[j]) <= tol[j] for j, g in zip(pick, got)):
+        return smallest(every)
+    return min(got, key=lambda c: c[2])
+
+
+def _projected_bics(prob: Problem, f0: Fit, base, cands):
+    """BIC of the fit ``f0`` with each column set of ``cands`` added (:func:`_best_rival`), by projection: the
+    residual of the data off ``f0``'s whitened design (an SVD of the design), less its part in the span of each set's
+    columns with the design projected out (an SVD per set, the sets of equal width at once), and the set's width as
+    its extra rank. Returns ``(bic, tol, safe)``: the tolerance of each (:data:`_CHI2_REL`, with the bound of the
+    condition number of [design, columns] from the two SVDs: 1/s_min <= 1/s_X + |C|/(s_X s_P) + 1/s_P, C the
+    columns' part in the design's span), and ``safe`` where the width is the rank lstsq finds (that bound of s_min
+    above :data:`_SAFE_SV` of the norm); None when the design is rank deficient or a value is not finite."""
+    Xw, r0 = base
+    m, p = Xw.shape
+    if r0 != p or p >= m:
+        return None
+    u, s, _ = np.linalg.svd(Xw, full_matrices=False)
+    yw = prob.wcache("y", lambda: prob.y)
+    r = yw - u @ (u.T @ yw)
+    rr = float(r @ r)
+    yy = float(yw @ yw)
+    xf2 = float(np.sum(Xw * Xw))
+    logn = math.log(prob.n)
+    n = len(cands)
+    bic, tol, safe = np.empty(n), np.empty(n), np.zeros(n, bool)
+    groups = {}
+    for j, (_, Sw, _) in enumerate(cands):
+        groups.setdefault(Sw.shape[1], []).append(j)
+    for w, js in groups.items():
+        S = np.stack([cands[j][1] for j in js])
+        C = u.T @ S
+        up, sp, _ = np.linalg.svd(S - u @ C, full_matrices=False)
+        c = np.einsum("kmw,m->kw", up, r)
+        norm = np.sqrt(xf2 + np.sum(S * S, axis=(1, 2)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_lo = 1.0 / (1.0 / s[-1] + np.sqrt(np.sum(C * C, axis=(1, 2))) / (s[-1] * sp[:, -1]) + 1.0 / sp[:, -1])
+        safe[js] = (w + p <= m) & (s_lo > _SAFE_SV * norm)
+        tol[js] = _CHI2_REL * (1.0 + norm / s_lo) * yy
+        extra = np.array([0.0 if cands[j][2] is None else cands[j][2] for j in js])
+        bic[js] = rr - np.sum(c * c, axis=1) + (f0.k + w) * logn + extra
+    safe &= np.isfinite(tol)
+    if not (np.all(np.isfinite(bic)) and math.isfinite(yy)):
+        return None
+    return bic, tol, safe
 
 
 def _whitened_base(prob: Problem, f0: Fit):
@@ -422,29 +512,29 @@ def generic_rivals(prob: Problem, final: Fit) -> list[dict]:
     if not fams or not final.terms:
         return []
     dbic = float(prob.settings.get("generic_delta_bic", 6.0))
-    drift = np.hstack([f["S"] for f in fams])
-    steps = norm_step_columns(prob)
+    # every rival's columns whitened once for all the found terms (the norm model's rows are one block, whitened
+    # column by column: a column of these is the whitening of that column alone)
+    drift = prob.whiten(np.hstack([f["S"] for f in fams]))
+    steps = [(j, prob.whiten(S)) for j, S in norm_step_columns(prob)]
+    periodic = [(i, per, prob.whiten(S)) for i, per, S in norm_periodic_columns(prob)]
     out = []
     for k in final.terms:
         rest = [t for t in final.terms if t != k]
         f0 = fit(prob, rest, taus={t: v for t, v in final.taus.items() if t in rest}) if rest else fit(prob, [])
         b0 = _whitened_base(prob, f0)
         cands = [("accelerometer biases drifting in time (Legendre degree 1-2; a generic basis, no physics named)",
-                  *_bic_with(prob, f0, drift, b0))]
+                  drift, None)]
         for j, S in steps:
-            chi2, bic = _bic_with(prob, f0, S, b0)
             cands.append((f"accelerometer biases stepping between static segments {j - 1} and {j} (a generic "
-                          "basis, no physics named)", chi2, bic + math.log(prob.n)))   # + the step time
+                          "basis, no physics named)", S, math.log(prob.n)))   # + the step time
         for j, S in steps:
             for i in range(3):   # one axis stepping: a bias jump of a single accelerometer
-                chi2, bic = _bic_with(prob, f0, S[:, i:i + 1], b0)
                 cands.append((f"accelerometer {AXES[i]} bias stepping between static segments {j - 1} and {j} (a "
-                              "generic basis, no physics named)", chi2, bic + math.log(prob.n)))
-        for i, per, S in norm_periodic_columns(prob):
-            chi2, bic = _bic_with(prob, f0, S, b0)
+                              "generic basis, no physics named)", S[:, i:i + 1], math.log(prob.n)))
+        for i, per, S in periodic:
             cands.append((f"accelerometer {AXES[i]} bias oscillating with period span/{per:g} (a generic basis, no "
-                          "physics named)", chi2, bic + math.log(prob.n)))              # + the period
-        name, chi2, bic = min(cands, key=lambda c: c[2])
+                          "physics named)", S, math.log(prob.n)))              # + the period
+        name, chi2, bic = _best_rival(prob, f0, b0, cands)
         if bic <= final.bic(prob.n) + dbic:
             out.append({"replaces": [k], "alternative": name, "generic": True, "chi2": chi2,
                         "chi2_found": final.chi2, "delta_bic": bic - final.bic(prob.n),
