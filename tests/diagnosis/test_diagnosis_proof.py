@@ -137,6 +137,7 @@ def test_power_scan_after_its_session_reuses_it_and_equals_a_fresh_scan(tmp_path
                                     for x in res], sort_keys=True)
     r = diagnosis_proof.proof_session("time_offset", tmp_path / "part", 2, 7, base=SHORT)
     assert len(built) == 1
+    assert r["fisher"]["exact"] and not diagnosis_proof.sim_fisher._NUISANCE   # its base spectra not kept after use
     after = diagnosis_proof.power_scan(r, 2, 7, base=SHORT)
     assert len(built) == 1 and len(after) >= 2                # the session's simulator, no build of its own
     fresh = diagnosis_proof.power_scan(r, 2, 7, base=SHORT)    # nothing kept now: built from scratch

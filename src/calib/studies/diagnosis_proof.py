@@ -33,6 +33,7 @@ from calib.io.netcdf import provenance
 from calib.io.atomic import atomic_path, write_json as write_json_atomic, write_text as write_text_atomic
 from calib.sim import effects as sim_effects
 from calib.sim import calibration_session as sim_session
+from calib.sim import fisher as sim_fisher
 from calib.sim import physical as sim_physical
 from calib.sim import truth as sim_truth
 from calib.sim import unmodelled as sim_unmodelled
@@ -269,6 +270,8 @@ def _proof_worker(args):
             infos = [proof_efficiency.information_pair(cfg, eid, params, fsn.sim, fsn.clean_base,
                                                        fsn.template["temperature"].values, fsn.template)
                      for eid, params in (cfg.get("effects") or {}).items()]
+            if _KEEP_SESSION[0]:   # a job of this session alone: no other session here shares its base spectra
+                sim_fisher.forget_nuisance_spectra()
         t_build = time.perf_counter() - t0
         # end to end: the simulator's own file through diagnose_recording, scored against its sidecar. Without
         # the command's two figures: the verdict does not read them, the session's residual figure is drawn from
