@@ -144,3 +144,17 @@ def test_resample_is_the_block_bootstrap_of_each_segment():
                 take = np.concatenate([(s + np.arange(L)) % m for s in starts])[:m]
                 want[idx] = y[idx].mean(axis=0) + e[take]
             assert np.array_equal(base.resample(np.random.default_rng(seed), block_s), want)
+
+
+@needs_real
+def test_a_repetition_dataset_holds_its_samples_and_leaves_the_recording_untouched():
+    ds = import_real(ROOT / "config" / "import" / "imu_tk_xsens.yaml")
+    base = ProofBase(ds, {"figures": False}, name="xsens")
+    before = np.array(ds["accel"].values, copy=True)
+    y = base.y + 1.0
+    d = base.dataset(y)
+    want = y / base.fs if ds["accel"].attrs.get("sample_kind") == "increment" else y
+    assert np.array_equal(d["accel"].values, want)
+    assert d["accel"].attrs == ds["accel"].attrs and d["accel"].dims == ds["accel"].dims
+    assert np.array_equal(ds["accel"].values, before)
+    assert all(d[k] is not None and np.array_equal(d[k].values, ds[k].values) for k in ds.data_vars if k != "accel")

@@ -512,11 +512,15 @@ def generic_rivals(prob: Problem, final: Fit) -> list[dict]:
     if not fams or not final.terms:
         return []
     dbic = float(prob.settings.get("generic_delta_bic", 6.0))
-    # every rival's columns whitened once for all the found terms (the norm model's rows are one block, whitened
+    # every rival's columns whitened at once for all the found terms (the norm model's rows are one block, whitened
     # column by column: a column of these is the whitening of that column alone)
-    drift = prob.whiten(np.hstack([f["S"] for f in fams]))
-    steps = [(j, prob.whiten(S)) for j, S in norm_step_columns(prob)]
-    periodic = [(i, per, prob.whiten(S)) for i, per, S in norm_periodic_columns(prob)]
+    steps, periodic = norm_step_columns(prob), norm_periodic_columns(prob)
+    mats = [np.hstack([f["S"] for f in fams])] + [S for _, S in steps] + [S for _, _, S in periodic]
+    ends = np.cumsum([0] + [S.shape[1] for S in mats])
+    W = prob.whiten(np.hstack(mats))
+    drift, *rest = [W[:, a:b] for a, b in zip(ends[:-1], ends[1:])]
+    steps = [(j, S) for (j, _), S in zip(steps, rest)]
+    periodic = [(i, per, S) for (i, per, _), S in zip(periodic, rest[len(steps):])]
     out = []
     for k in final.terms:
         rest = [t for t in final.terms if t != k]

@@ -203,7 +203,9 @@ class ProofBase:
         ds = self.ds.copy()
         v = ds["accel"]
         vals = y / self.fs if v.attrs.get("sample_kind") == "increment" else y
-        ds["accel"] = (v.dims, np.asarray(vals, dtype=float), v.attrs)
+        # the copy's own variable takes the samples (its dimensions and attributes kept; the recording's variable is
+        # another object, untouched)
+        v.data = np.asarray(vals, dtype=float)
         return ds
 
     def diagnose(self, y: np.ndarray, label: str):
