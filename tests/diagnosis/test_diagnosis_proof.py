@@ -181,6 +181,25 @@ def test_skipping_absent_bounds_and_detail_changes_nothing_else(tmp_path):
         if t_lean["rms"] is None:      # the size of a generic structure: for the significant ones only
             assert not t_lean["significant"]
             t_full["rms"] = None
+    # the size of the slow level a verdict needs is detail too (its bisection): which axes need one is not
+    sl_full, sl_lean = full["adequacy"]["slow_noise"], lean["adequacy"]["slow_noise"]
+    assert all(e["minimum_for_adequacy"] is None for e in sl_lean["levels"])
+    for r, sl in ((full, sl_full), (lean, sl_lean)):
+        if sl["statement"]:
+            r["verdict_reason"] = r["verdict_reason"].replace(sl["statement"], "<slow-noise statement>")
+        sl["statement"], sl["record_minutes_needed"] = None, None
+        sl["levels"] = [{k: e[k] for k in ("sensor", "axis", "unit", "record_resolves_it")} for e in sl["levels"]]
+    # the Cramer-Rao bounds beside the estimates are detail too
+    assert "bounds" in full and "bounds" not in lean
+
+    def without_bounds(o):
+        if isinstance(o, dict):
+            return {k: without_bounds(v) for k, v in o.items()
+                    if k not in ("sigma_crb", "se_over_crb", "crb_note", "bounds_not_estimated")}
+        return [without_bounds(v) for v in o] if isinstance(o, list) else o
+
+    full.pop("bounds")
+    full, lean = without_bounds(full), without_bounds(lean)
     for r in (full, lean):
         r.pop("absent"), r.pop("elapsed_s"), r.pop("locate"), r.pop("identifiability")
         r.get("settings", {}).pop("absent_bounds", None), r.get("settings", {}).pop("report_detail", None)
