@@ -11,14 +11,19 @@ It is computed from the measurement model alone (:mod:`calib.calibration.bound`)
   ``n_m`` the samples of interval m the fit uses. The parameters the fit holds at nominal are taken as known.
 * Gyro offsets: the constant bias (``statics``: mean over the static samples; bound ``sigma_i / sqrt(n)``, the
   noise density over the square root of the static time) or bias and g-sensitivity (``g_sensitive``: the linear
-  model ``mean_m = b + G a_m`` on the interval means, bound ``(X^T W X)^-1``, W = n_m / sigma_i^2).
+  model ``mean_m = b + G a_m`` on the interval means, bound ``(X^T W X)^-1``, W = n_m / sigma_i^2); the bias of
+  the initial rest (``initial``: the mean of the initial rest's n samples the fit averages, bound
+  ``sigma_i / sqrt(n)``); the bias estimated with the gravity-direction parameters from the motions
+  (``estimate``: the bias rows of :func:`gyro_direction_bound`'s inverse, the bias a further unknown of the
+  integration; an axis the fit holds keeps the initial-rest mean and its bound).
 * Gyro gravity-direction parameters (6 misalignments, 3 gains, :func:`gyro_direction_bound`): each motion
   carries the gravity direction of one pose into the next through the integrated, corrected gyro; the
   information of the accel interval means (which see the pose directions and determine the accel calibration)
   and of the motions (the gyro white noise integrated over each, about angle random walk x sqrt(duration))
   over [accel parameters, gyro parameters, pose directions], the directions and the accel parameters profiled
   out. Derivatives of the integration by central differences (the forward model, not the fit's covariance).
-* Not bounded here (reported as such, never as a number): the offsets of the ``initial`` / ``estimate`` modes.
+* Beside each bound, ``se_over_crb``: the fit's reported standard error over it (None where the fit reports no
+  standard error or the bound has no number).
 
 The noise is the white part measured inside the intervals: slower noise (bias drift over the session) is not in
 it, so the bound is what white noise alone allows.
@@ -92,14 +97,31 @@ def accel_bound(fit, accel_in, intervals, gravity: float) -> dict:
             "noise": NOISE_NOTE, "intervals": int(len(n)), "samples": int(n.sum())}
 
 
-def gyro_offset_bound(fit, gyro_in, accel_cal, intervals, mode: str) -> dict:
-    """The bound of the gyro fit's offsets for the bias ``mode`` (``statics`` | ``g_sensitive``; the others are
-    reported as not bounded) from the static intervals' white noise."""
+def gyro_offset_bound(fit, gyro_in, accel_cal, intervals, mode: str, bias_span=None) -> dict:
+    """The bound of the gyro fit's offsets for the bias ``mode`` from the static intervals' white noise:
+    ``statics`` | ``g_sensitive`` (the static interval means), ``initial`` (the mean of the samples
+    ``bias_span`` = [start, stop) of the initial rest: ``sigma_i / sqrt(n)``). ``estimate``: the bias comes from
+    the motions, bounded by :func:`gyro_direction_bound` (:func:`attach` puts it here); without ``bias_span`` the
+    ``initial`` bias gets no number."""
     spans = used_samples(intervals)
     means, n, sig = interval_noise(gyro_in, spans)
     names = BIAS_NAMES + (GSENS_NAMES if mode == "g_sensitive" else ())
     out = {nm: None for nm in fit.names}
     reason = {nm: "not bounded here: a gravity-direction parameter (gyro_direction_bound)" for nm in fit.names}
+    base = {"noise_sigma_per_sample": [float(v) for v in sig], "noise": NOISE_NOTE}
+    if mode == "initial" or mode == "estimate":
+        for nm in BIAS_NAMES:
+            reason[nm] = ("not bounded: the samples of the initial rest the bias is the mean of are not known "
+                          "(bias_span)" if mode == "initial" else
+                          "estimated with the gravity-direction parameters from the motions (gyro_direction_bound)")
+        if mode == "estimate" or bias_span is None:
+            return {"sigma": out, "why_none": reason, **base}
+        a, b = int(bias_span[0]), int(bias_span[1])
+        for i, nm in enumerate(BIAS_NAMES):   # the mean of n white samples: variance sig_i^2 / n
+            out[nm] = float(sig[i] / np.sqrt(b - a))
+            reason.pop(nm)
+        return {"sigma": out, "why_none": reason, **base, "of": list(BIAS_NAMES),
+                "model": f"offsets (initial): the mean of the initial rest, samples [{a}, {b}) ({b - a} samples)"}
     if mode == "statics":
         X = np.ones((len(n), 1))
     elif mode == "g_sensitive":
@@ -108,8 +130,7 @@ def gyro_offset_bound(fit, gyro_in, accel_cal, intervals, mode: str) -> dict:
     else:
         for nm in BIAS_NAMES:
             reason[nm] = f"not bounded: the bias of mode {mode!r} is not computed here"
-        return {"sigma": out, "why_none": reason, "noise_sigma_per_sample": [float(v) for v in sig],
-                "noise": NOISE_NOTE}
+        return {"sigma": out, "why_none": reason, **base}
     for i in range(3):   # axis i: mean_m,i = X_m . [b_i, G_i,:], variance sig_i^2 / n_m
         C = np.linalg.inv(X.T @ (X * (n / sig[i] ** 2)[:, None]))
         s = np.sqrt(np.diag(C))
@@ -119,8 +140,7 @@ def gyro_offset_bound(fit, gyro_in, accel_cal, intervals, mode: str) -> dict:
             for j in range(3):
                 out[GSENS_NAMES[3 * i + j]] = float(s[1 + j])
                 reason.pop(GSENS_NAMES[3 * i + j])
-    return {"sigma": {nm: out[nm] for nm in fit.names}, "why_none": reason,
-            "noise_sigma_per_sample": [float(v) for v in sig], "noise": NOISE_NOTE,
+    return {"sigma": {nm: out[nm] for nm in fit.names}, "why_none": reason, **base,
             "model": f"offsets ({mode}) from {len(n)} static interval means, {int(n.sum())} samples",
             "of": list(names)}
 
@@ -241,23 +261,56 @@ def gyro_direction_bound(fit, gyro_in, accel_in, acc_fit, accel_cal, intervals, 
                                             "; the gyro offsets taken as known"))}
 
 
+def _se_over_crb(fit, block) -> None:
+    """Add ``se_over_crb`` to a bound ``block``: the fit's reported standard error of each parameter over its
+    bound (None where either is missing: a bound without a number, or a parameter the fit reports no standard
+    error for)."""
+    se = fit.std
+    ratio = {}
+    for k, nm in enumerate(fit.names):
+        b = block["sigma"].get(nm)
+        ratio[nm] = float(se[k] / b) if (b is not None and b > 0 and np.isfinite(se[k])) else None
+    block["se_over_crb"] = ratio
+
+
 def attach(acc_fit, gyr_fit, acc_in, gyr_in, accel_raw, intervals, gravity: float) -> None:
     """Put the bounds of a norm-method result in its fits' ``extra["sigma_crb"]`` (reported by
     :meth:`calib.fieldcal.results.FieldCalResult.summary`): the accel's from :func:`accel_bound`, the gyro's offsets
-    from :func:`gyro_offset_bound` (bias mode ``extra["bias_mode"]`` of the gyro fit) and its gravity-direction
-    parameters from :func:`gyro_direction_bound` (integration steps ``extra["integration_dt"]`` of the gyro fit,
-    else the nominal step)."""
+    from :func:`gyro_offset_bound` (bias mode ``extra["bias_mode"]`` of the gyro fit; the initial rest's samples
+    ``extra["bias_span"]``) and its gravity-direction parameters from :func:`gyro_direction_bound` (integration
+    steps ``extra["integration_dt"]`` of the gyro fit, else the nominal step), with the bias in mode ``estimate``
+    (an axis the fit holds at its initial-rest mean: that mean's bound); each with ``se_over_crb``."""
     acc_fit.extra["sigma_crb"] = accel_bound(acc_fit, acc_in, intervals, gravity)
+    _se_over_crb(acc_fit, acc_fit.extra["sigma_crb"])
     if gyr_fit is not None and gyr_in is not None:
         mode = gyr_fit.extra.get("bias_mode", "")
+        span = gyr_fit.extra.get("bias_span")
         acc_cal = acc_fit.apply(np.asarray(accel_raw))
         off = gyro_offset_bound(gyr_fit, gyr_in, acc_cal if mode == "g_sensitive" else None, intervals, mode)
         dirb = gyro_direction_bound(gyr_fit, gyr_in, acc_in, acc_fit, acc_cal, intervals, gravity,
                                     gyr_fit.extra.get("integration_dt"))
-        for nm in GYRO_NAMES:
-            off["sigma"][nm] = dirb["sigma"][nm]
+        from_dir = GYRO_NAMES + (BIAS_NAMES if mode == "estimate" else ())
+        if mode in ("initial", "estimate"):
+            init = gyro_offset_bound(gyr_fit, gyr_in, None, intervals, "initial", span)
+            if mode == "initial":
+                off = init
+        for nm in from_dir:
+            off["sigma"][nm] = dirb["sigma"].get(nm)
             off["why_none"].pop(nm, None)
             if nm in dirb["why_none"]:
                 off["why_none"][nm] = dirb["why_none"][nm]
+        if mode == "estimate":
+            held = [nm for nm in BIAS_NAMES if nm in dirb.get("held_at_nominal", [])]
+            for nm in held:   # held at its start: the initial-rest mean
+                off["sigma"][nm] = init["sigma"][nm]
+                off["why_none"].pop(nm, None)
+                if nm in init["why_none"]:
+                    off["why_none"][nm] = init["why_none"][nm]
+            off["of"] = list(BIAS_NAMES)
+            off["model"] = ("offsets (estimate): the bias estimated with the gravity-direction parameters from the "
+                            f"{dirb['motions']} motions (see direction)" +
+                            (f"; {', '.join(held)} held by the fit at the initial-rest mean: " + init.get(
+                                "model", "its samples not known") if held else ""))
         off["direction"] = {k: v for k, v in dirb.items() if k not in ("sigma", "why_none")}
+        _se_over_crb(gyr_fit, off)
         gyr_fit.extra["sigma_crb"] = off

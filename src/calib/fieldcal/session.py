@@ -245,6 +245,9 @@ def _norm(inp: _Inputs, det_cfg: dict, notes: list, metrics: dict, x0=None):
             b0 = np.concatenate([gyr_in[a:b] for a, b in iv]).mean(axis=0)
         elif bias_mode in ("initial", "estimate"):
             b0 = gyr_in[init_span[0]:init_span[1]].mean(axis=0)
+            if bias_mode == "initial":   # the standard error of a mean of the rest's samples
+                rest = gyr_in[init_span[0]:init_span[1]]
+                off_cov = np.diag(rest.var(axis=0, ddof=1) / len(rest))
         if gset.get("dt", "nominal") == "timestamps":
             if "time" not in ds.coords:
                 raise FieldCalError(f"{src}: gyro.dt = timestamps but the recording has no time coordinate")
@@ -266,6 +269,8 @@ def _norm(inp: _Inputs, det_cfg: dict, notes: list, metrics: dict, x0=None):
             "statics": "bias: mean over all static samples"}[bias_mode])
         gyr_fit.notes.append(f"integration step: {gset.get('dt', 'nominal')}")
         gyr_fit.extra["bias_mode"] = bias_mode
+        if bias_mode in ("initial", "estimate"):   # the samples the bias starts from: its bound (calib.fieldcal.bound)
+            gyr_fit.extra["bias_span"] = (int(init_span[0]), int(init_span[1]))
         gyr_fit.extra["integration_dt"] = dts   # the steps integrated: the gravity-direction bound uses the same
         metrics["gyro_direction_rms_deg"] = gyr_fit.residual_rms
         metrics["gyro_direction_rms_before_deg"] = gyr_fit.extra["rms_before_deg"]
