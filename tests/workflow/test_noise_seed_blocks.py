@@ -1,7 +1,8 @@
 """The drift stage's noise-seed study is planned as blocks of seeds, one job of one thread each, gathered by one job
 (rule drift_noise_seeds_block, rule drift_noise_seeds in workflow/rules/drift.smk): the blocks hold every seed of
 the configuration once, in order, at most 15 a block and at least two blocks, so that no single job carries the
-whole study. Checked on the plan (``snakemake --dry-run``) of the default and the .test configuration."""
+whole study. Checked on the plan (``snakemake --dry-run``) of the default and the .test configuration in the
+`unit` scatter mode (a cluster's; the jobs of the other modes: tests/workflow/test_scatter_jobs.py)."""
 import os
 import re
 import subprocess
@@ -28,7 +29,7 @@ def _plan(tmp_path, config: Path) -> list[dict]:
     env = {k: v for k, v in os.environ.items() if k != "SNAKEMAKE_PROFILE"}
     r = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(ROOT / "Snakefile"),
                         str(results / "drift" / "noise_seeds.csv"), "--dry-run", "--forceall", "--cores", "2",
-                        "--directory", str(tmp_path / "work"), "--configfile", str(cfgfile)],
+                        "--directory", str(tmp_path / "work"), "--configfile", str(cfgfile), "--config", "scatter=unit"],
                        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
     jobs, cur = [], None

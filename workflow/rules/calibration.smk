@@ -34,13 +34,9 @@ rule calibrate:
         "../scripts/calibrate.py"
 
 
-# The z-score study's seeds as [first, stop) blocks of near-equal size, in order, one job each: at most
-# Z_SEEDS_PER_JOB seeds a block and at least two blocks (so that a local run uses both cores). A block's seeds are
-# the seeds of one run (each derives its own from its index), so the gathered table does not depend on the blocks.
+# The z-score study's seeds in blocks of at most Z_SEEDS_PER_JOB, one job each (seed_blocks in common.smk).
 Z_SEEDS_PER_JOB = 100
-_Z_N = int(CAL.get("z_seeds", 0))
-_Z_K = max(-(-_Z_N // Z_SEEDS_PER_JOB), min(_Z_N, 2))
-Z_BLOCKS = [f"{round(i * _Z_N / _Z_K)}_{round((i + 1) * _Z_N / _Z_K)}" for i in range(_Z_K)]
+Z_BLOCKS = seed_blocks(int(CAL.get("z_seeds", 0)), Z_SEEDS_PER_JOB)
 
 
 rule calibration_z_seeds:

@@ -10,6 +10,50 @@ CAL = config["calibration"]
 DIAG = config.get("diagnosis", {})
 
 
+# How the long studies are split into jobs (config key `scatter`; their products do not depend on it): `unit`, a
+# job per proof session, real recording and seed block, so that on a cluster more nodes mean less wait; an integer
+# n, at most n jobs per study, each running its share of the units in turn; `auto` (the default), `unit` on a
+# cluster and twice the cores on one machine, where every job's start-up (interpreter, imports, compiled kernels:
+# about 1.7 s) is paid on the same cores. A job under a cluster executor (exec mode remote) decides as the
+# submitting process did, so both see the same jobs.
+def _scatter_jobs():
+    s = config.get("scatter", "auto")
+    if s != "auto":
+        return None if s == "unit" else int(s)
+    if workflow.remote_exec or workflow.non_local_exec:
+        return None
+    try:
+        return 2 * int(workflow.cores)
+    except Exception:   # a dry run without --cores: no cores to size the jobs to
+        return None
+
+
+SCATTER_JOBS = _scatter_jobs()
+
+
+def scatter(units, unit_blocks=None):
+    """The units of a study (names, in order) as its jobs: an ordered {block name: [units]}. ``unit_blocks``: the
+    blocks of the `unit` mode (default: one per unit, named by it). With at most n jobs (SCATTER_JOBS), the units
+    are dealt round-robin over ``min(n, len(blocks))`` jobs named ``j<i>of<k>`` (neighbours, often alike in cost,
+    land in different jobs)."""
+    blocks = unit_blocks if unit_blocks is not None else {u: [u] for u in units}
+    if SCATTER_JOBS is None or SCATTER_JOBS >= len(blocks):
+        return blocks
+    k = SCATTER_JOBS
+    return {f"j{i}of{k}": list(units)[i::k] for i in range(k)}
+
+
+def seed_blocks(n, per_job):
+    """A seed study's seeds 0 .. n - 1 as [first, stop) blocks of near-equal size, in order, named "first_stop":
+    at most ``per_job`` seeds a block in the `unit` mode, at most SCATTER_JOBS blocks otherwise, and at least two
+    (both cores of a small machine). Every seed draws from its own streams (its index), so the gathered products do
+    not depend on the blocks."""
+    k = max(-(-n // per_job), min(n, 2))
+    if SCATTER_JOBS is not None:
+        k = max(min(k, SCATTER_JOBS), min(n, 2))
+    return [f"{round(i * n / k)}_{round((i + 1) * n / k)}" for i in range(k)]
+
+
 def sub(section):
     """A config section as params (values read straight from config would not trigger reruns)."""
     return json.loads(json.dumps(config[section]))

@@ -1,9 +1,11 @@
 # Diagnosis stage: does the base sensor model fit the recording, and if not, which physics is missing?
 # `diagnose` runs on the study's recording (the synthetic calibration session, or the imported one of a
-# real-recording study); the concealed-effect proof (results/proof/) runs as one job per proof session with its
-# detection-power scan (`diagnosis_proof_session`), gathered by `diagnosis_proof`; the real-recording proof as one
-# job per recording (`diagnosis_real_proof_recording`), gathered by `diagnosis_real_proof`; `diagnosis_real` diagnoses every shared real recording and one with a known
-# term injected. The jobs' parts are temporary: the gathered products are those of one job running them all.
+# real-recording study); the concealed-effect proof (results/proof/) runs its sessions, each with its detection-power
+# scan, in the jobs of `diagnosis_proof_session` (a job per session, or per share of them: `scatter` in common.smk),
+# gathered by `diagnosis_proof`; the real-recording proof its recordings in the jobs of
+# `diagnosis_real_proof_recording`, gathered by `diagnosis_real_proof`; `diagnosis_real` diagnoses every shared real
+# recording and one with a known term injected. The jobs' parts are temporary: the gathered products are those of
+# one job running them all.
 from calib.studies import proof_sessions as _proof_sessions  # plain data: no numerical import when parsing
 
 PROOF_NAMES = _proof_sessions.session_names(DIAG.get("proof", {}).get("sessions"))
@@ -12,11 +14,14 @@ PROOF_NAMES = _proof_sessions.session_names(DIAG.get("proof", {}).get("sessions"
 _REAL_PROOF_ALL = sorted(os.path.splitext(os.path.basename(p))[0] for p in glob.glob("config/import/*.yaml"))
 REAL_PROOF_NAMES = [n for n in _REAL_PROOF_ALL
                     if not DIAG.get("real_proof", {}).get("recordings") or n in DIAG["real_proof"]["recordings"]]
+# their jobs (`scatter` in common.smk): {job name: the sessions / recordings it runs, in turn}
+PROOF_JOBS = scatter(PROOF_NAMES)
+REAL_PROOF_JOBS = scatter(REAL_PROOF_NAMES)
 
 
 wildcard_constraints:
-    proof_session="[A-Za-z0-9_]+",
-    real_recording="[A-Za-z0-9_.-]+",
+    proof_job="[A-Za-z0-9_]+",
+    real_proof_job="[A-Za-z0-9_.-]+",
 
 
 rule diagnose:
@@ -54,14 +59,15 @@ rule diagnosis_proof_noise_store:
 
 
 rule diagnosis_proof_session:
-    """One concealed-effect session diagnosed blind over its noise seeds, and its detection-power scan when it hides
-    a single effect (a job per session)."""
+    """Concealed-effect sessions diagnosed blind over their noise seeds, each with its detection-power scan when it
+    hides a single effect (a job per session, or per share of the sessions: PROOF_JOBS); a folder per session."""
     input:
         noise_record=f"{R}/data/static_check.nc",   # the unit's long static record: measured slow noise
         noise_store=f"{R}/proof/parts/noise",
     output:
-        part=temp(directory(f"{R}/proof/parts/sessions/{{proof_session}}")),
+        part=temp(directory(f"{R}/proof/parts/sessions/{{proof_job}}")),
     params:
+        sessions=lambda w: PROOF_JOBS[w.proof_job],
         proof=lambda w: DIAG["proof"],
         settings=lambda w: DIAG.get("settings", {}),
         seed=config["seeds"]["diagnosis"],
@@ -69,9 +75,9 @@ rule diagnosis_proof_session:
         site=sub("site"),
     threads: 1
     log:
-        f"{R}/logs/diagnosis_proof/{{proof_session}}.log",
+        f"{R}/logs/diagnosis_proof/{{proof_job}}.log",
     benchmark:
-        f"{R}/benchmarks/diagnosis_proof_session.{{proof_session}}.tsv"
+        f"{R}/benchmarks/diagnosis_proof_session.{{proof_job}}.tsv"
     conda:
         "../envs/calib.yaml"
     script:
@@ -82,7 +88,7 @@ rule diagnosis_proof:
     """Concealed-effect sessions diagnosed blind over many noise seeds; detection power (gathered from the
     sessions' jobs)."""
     input:
-        sessions=expand(f"{R}/proof/parts/sessions/{{proof_session}}", proof_session=PROOF_NAMES),
+        jobs=expand(f"{R}/proof/parts/sessions/{{proof_job}}", proof_job=PROOF_JOBS),
     output:
         proof=f"{R}/proof/proof.json",
         table=report(f"{R}/proof/proof.csv", category="6 Diagnosis", caption="../report/proof.rst"),
@@ -136,20 +142,21 @@ rule diagnosis_real:
 
 
 rule diagnosis_real_proof_recording:
-    """One real recording as a proof base: its detection limits and the effects injected at twice them."""
+    """Real recordings as proof bases, each with its detection limits and the effects injected at twice them (a job
+    per recording, or per share of them: REAL_PROOF_JOBS); a part file per recording."""
     input:
-        settings="config/import/{real_recording}.yaml",
+        settings=lambda w: [f"config/import/{n}.yaml" for n in REAL_PROOF_JOBS[w.real_proof_job]],
     output:
-        part=temp(f"{R}/diagnosis/real_proof/parts/{{real_recording}}.json"),
+        part=temp(directory(f"{R}/diagnosis/real_proof/parts/{{real_proof_job}}")),
     params:
         cfg=lambda w: DIAG.get("real_proof", {}),
         settings=lambda w: DIAG.get("settings", {}),
         seed=config["seeds"]["diagnosis"],
     threads: 1
     log:
-        f"{R}/logs/diagnosis_real_proof/{{real_recording}}.log",
+        f"{R}/logs/diagnosis_real_proof/{{real_proof_job}}.log",
     benchmark:
-        f"{R}/benchmarks/diagnosis_real_proof_recording.{{real_recording}}.tsv"
+        f"{R}/benchmarks/diagnosis_real_proof_recording.{{real_proof_job}}.tsv"
     conda:
         "../envs/calib.yaml"
     script:
@@ -161,7 +168,7 @@ rule diagnosis_real_proof:
     from the recordings' jobs)."""
     input:
         settings=sorted(glob.glob("config/import/*.yaml")),
-        parts=expand(f"{R}/diagnosis/real_proof/parts/{{real_recording}}.json", real_recording=REAL_PROOF_NAMES),
+        jobs=expand(f"{R}/diagnosis/real_proof/parts/{{real_proof_job}}", real_proof_job=REAL_PROOF_JOBS),
     output:
         proof=f"{R}/diagnosis/real_proof/real_proof.json",
         md=report(f"{R}/diagnosis/real_proof/real_proof.md", category="6 Diagnosis", caption="../report/real_proof.rst"),

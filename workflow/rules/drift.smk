@@ -54,14 +54,10 @@ rule drift_validation:
         "../scripts/drift_validation.py"
 
 
-# The noise-seed study's seeds as [first, stop) blocks of near-equal size, in order, one job each: at most
-# NOISE_SEEDS_PER_JOB seeds a block (about 1.5 s of one core a seed at the default settings) and at least two blocks
-# (so that a local run uses both cores). Every seed draws from its own streams (its index), so the gathered
-# products do not depend on the blocks.
+# The noise-seed study's seeds in blocks of at most NOISE_SEEDS_PER_JOB (about 1.5 s of one core a seed at the
+# default settings), one job each (seed_blocks in common.smk).
 NOISE_SEEDS_PER_JOB = 15
-_NS_N = int(config["drift"].get("noise_seeds", 0))
-_NS_K = max(-(-_NS_N // NOISE_SEEDS_PER_JOB), min(_NS_N, 2))
-NOISE_SEED_BLOCKS = [f"{round(i * _NS_N / _NS_K)}_{round((i + 1) * _NS_N / _NS_K)}" for i in range(_NS_K)]
+NOISE_SEED_BLOCKS = seed_blocks(int(config["drift"].get("noise_seeds", 0)), NOISE_SEEDS_PER_JOB)
 
 
 rule drift_noise_seeds_block:
