@@ -4,6 +4,7 @@ fieldcal`` reports it: on a synthetic session with a known bias and known white 
 n white samples, and the spread of the bias estimates over noise seeds against the bound of one seed's recording."""
 from __future__ import annotations
 
+import copy
 import math
 from types import SimpleNamespace
 
@@ -26,7 +27,7 @@ def runs():
     white noise redrawn: ``calib fieldcal``'s result in modes ``initial`` and ``estimate`` for each of 40 seeds."""
     clean = session(3, n_poses=14, gyro_noise=0.0, accel_noise=0.0)
     n = len(clean["accel"])
-    out = {"initial": [], "estimate": [], "gyro": [], "bias_true": clean["gyro"][:100].mean(axis=0)}
+    out = {"initial": [], "estimate": [], "bias_true": clean["gyro"][:100].mean(axis=0)}
     for k in range(N_SEEDS):
         rng = np.random.default_rng([21, k])
         a = clean["accel"] + ACCEL_NOISE * rng.standard_normal((n, 3))
@@ -36,7 +37,7 @@ def runs():
         for mode in ("initial", "estimate"):
             out[mode].append(fieldcal.fieldcal_recording(ds, {"gyro": {"bias": mode}}))
         if k == 0:
-            out["gyro"] = g
+            out["accel"], out["gyro"] = a, g
     return out
 
 
@@ -99,3 +100,23 @@ def test_initial_bias_without_its_samples_gets_no_number():
         np.asarray(out["noise_sigma_per_sample"]) / 30.0, rel=1e-12)
     out = fb.gyro_offset_bound(fit, g, None, iv, "other")
     assert all(out["sigma"][nm] is None and out["why_none"][nm] for nm in BIAS_NAMES)
+
+
+
+def test_a_bias_axis_the_fit_holds_keeps_the_initial_rest_bound(runs):
+    """Mode ``estimate`` with a bias axis the fit holds at nominal (no correction: the initial-rest mean stays its
+    value): that axis's bound is the initial-rest mean's, sigma / sqrt(n), not the motions'; the other axes keep
+    a bound from the motions."""
+    res = runs["estimate"][0]
+    acc_fit, fit = copy.deepcopy(res.accel), copy.deepcopy(res.gyro)
+    a, b = fit.extra["bias_span"]
+    g = runs["gyro"]
+    fit.bias[0] = fit.values[9] = g[a:b, 0].mean()          # bias_x held at its start
+    fit.determination.held = ("bias_x",)
+    fb.attach(acc_fit, fit, runs["accel"], g, runs["accel"], res.intervals, res.gravity_m_s2)
+    blk = fit.extra["sigma_crb"]
+    closed = blk["noise_sigma_per_sample"][0] / math.sqrt(b - a)
+    assert blk["sigma"]["bias_x"] == pytest.approx(closed, rel=1e-12) and "bias_x" not in blk["why_none"]
+    assert res.summary()["gyro_sigma_crb"]["sigma"]["bias_x"] > 1.5 * closed   # the motions' bound, not held
+    assert blk["sigma"]["bias_y"] is not None and blk["sigma"]["bias_z"] is not None
+    assert "held" in blk["model"] and blk["direction"]["held_at_nominal"] == ["bias_x"]
