@@ -286,14 +286,12 @@ def attach(acc_fit, gyr_fit, acc_in, gyr_in, accel_raw, intervals, gravity: floa
         mode = gyr_fit.extra.get("bias_mode", "")
         span = gyr_fit.extra.get("bias_span")
         acc_cal = acc_fit.apply(np.asarray(accel_raw))
-        off = gyro_offset_bound(gyr_fit, gyr_in, acc_cal if mode == "g_sensitive" else None, intervals, mode)
+        init = gyro_offset_bound(gyr_fit, gyr_in, None, intervals, "initial", span) if span is not None else None
+        off = init if mode == "initial" and init is not None else gyro_offset_bound(
+            gyr_fit, gyr_in, acc_cal if mode == "g_sensitive" else None, intervals, mode)
         dirb = gyro_direction_bound(gyr_fit, gyr_in, acc_in, acc_fit, acc_cal, intervals, gravity,
                                     gyr_fit.extra.get("integration_dt"))
         from_dir = GYRO_NAMES + (BIAS_NAMES if mode == "estimate" else ())
-        if mode in ("initial", "estimate"):
-            init = gyro_offset_bound(gyr_fit, gyr_in, None, intervals, "initial", span)
-            if mode == "initial":
-                off = init
         for nm in from_dir:
             off["sigma"][nm] = dirb["sigma"].get(nm)
             off["why_none"].pop(nm, None)
@@ -301,16 +299,17 @@ def attach(acc_fit, gyr_fit, acc_in, gyr_in, accel_raw, intervals, gravity: floa
                 off["why_none"][nm] = dirb["why_none"][nm]
         if mode == "estimate":
             held = [nm for nm in BIAS_NAMES if nm in dirb.get("held_at_nominal", [])]
-            for nm in held:   # held at its start: the initial-rest mean
-                off["sigma"][nm] = init["sigma"][nm]
+            for nm in held:   # held at its start: the initial-rest mean, bounded when its samples are known
+                off["sigma"][nm] = None if init is None else init["sigma"][nm]
                 off["why_none"].pop(nm, None)
-                if nm in init["why_none"]:
-                    off["why_none"][nm] = init["why_none"][nm]
+                if init is None:
+                    off["why_none"][nm] = ("held by the fit at the initial-rest mean, whose samples are not known "
+                                           "(bias_span)")
             off["of"] = list(BIAS_NAMES)
             off["model"] = ("offsets (estimate): the bias estimated with the gravity-direction parameters from the "
                             f"{dirb['motions']} motions (see direction)" +
-                            (f"; {', '.join(held)} held by the fit at the initial-rest mean: " + init.get(
-                                "model", "its samples not known") if held else ""))
+                            (f"; {', '.join(held)} held by the fit at the initial-rest mean" +
+                             (f": {init['model']}" if init is not None else "") if held else ""))
         off["direction"] = {k: v for k, v in dirb.items() if k not in ("sigma", "why_none")}
         _se_over_crb(gyr_fit, off)
         gyr_fit.extra["sigma_crb"] = off
