@@ -41,6 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.optimize
+import scipy.sparse
 
 from calib.core import earth
 from calib.core.earth import STANDARD_GRAVITY
@@ -297,3 +299,118 @@ def drift_bounds(window_h, dt_out, lat, C_bn, h=0.0, q_gyro=0.0, q_accel=0.0, co
         out.append(DriftBound(PARAMETERS[:p], UNITS[:p], sigma, cov, F, ident, J.shape[0], cond_s, cond_f,
                               null / scale[:, None]))
     return tuple(out)
+
+
+# ======================================================================================================
+# The spread and offset of the least-squares minimiser of He 2019's channel-weighted cost (no estimator run)
+# ======================================================================================================
+def vertical_bias_sensitivity(t, lat, C_bn, theta, h=0.0, condition="true_attitude") -> np.ndarray:
+    """(4N,) the observed errors [vE, vN, L, lambda] at the times ``t`` per unit vertical accelerometer bias
+    nabla_U [m/s^2], time-major like :func:`sensitivity_matrix`.
+
+    The linear model has no such column: a vertical bias drives only the vertical channel (held by the
+    navigation). It reaches the horizontal channels at second order, through the tilt: the computed specific
+    force is (I - [phi x]) (g + nabla_U) e_U, so nabla_U adds to the horizontal velocity rates what g does, scaled
+    by nabla_U / g, times the tilt phi(t) the constants ``theta`` (:data:`PARAMETERS` [rad/s, m/s^2]) produce.
+    The column therefore depends on the truth. The navigation's own column also carries the tilt the noise adds
+    (about a tenth of it over 3 h), which is left out: over 3 h it moves the least-squares spread of
+    :func:`cost_lsq_limit` by ~0.1 %; over 1 h, where the noise's tilt is a larger share, the fit on navigated
+    data spreads up to ~10 % more than that limit.
+    """
+    C = np.asarray(C_bn, float)
+    nx = errormodel.NX
+    F = errormodel.f_matrix(lat, h)
+    g = float(earth.normal_gravity(lat, h))
+    A = np.zeros((2 * nx + 1, 2 * nx + 1))
+    A[:nx, :nx] = F
+    A[nx:2 * nx, nx:2 * nx] = F
+    A[nx + 3:nx + 5, 0:3] = F[3:5, 0:3] / g  # the tilt coupling of g, per unit of g
+    A[0:3, 2 * nx] = -C @ np.asarray(theta, float)[:3]  # the drift's tilt rate (a constant input)
+    A[3, 2 * nx], A[4, 2 * nx] = theta[3], theta[4]
+    z0 = np.zeros(2 * nx + 1)
+    z0[:nx] = initial_state_map(condition, lat, C, h) @ np.asarray(theta, float)
+    z0[2 * nx] = 1.0
+    X = errormodel.transition(np.asarray(t, float), A, z0[:, None])[..., 0]  # (N, 2 nx + 1)
+    return X[:, [nx + i for i in _OBS_STATE]].reshape(-1)
+
+
+@dataclass
+class CostLsqLimit:
+    """What the least-squares minimiser of the channel-weighted cost does over noise realisations, from the model:
+    ``sigma`` (3,) its 1-sigma spread and ``bias`` (3,) its mean minus the truth, for the drift [rad/s]."""
+
+    sigma: np.ndarray
+    bias: np.ndarray
+    parameters: tuple  # the columns fitted
+
+    def sigma_deg_h(self):
+        return self.sigma / earth.DEG_PER_H
+
+    def bias_deg_h(self):
+        return self.bias / earth.DEG_PER_H
+
+
+def cost_lsq_limit(window_h, dt_out, lat, C_bn, theta, weights, h=0.0, q_gyro=0.0, q_accel=0.0,
+                   condition="true_attitude", fit_accel_bias=True, fit_vertical_bias=True,
+                   meas_sigma=None) -> CostLsqLimit:
+    """Spread and offset of the drift that minimises sum_k sum_c (w_c e_c(t_k))^2, the squared form of He 2019's
+    cost (eq. 18): every output instant counts alike, each channel c (vE, vN, L, lambda) by its weight ``weights``
+    (4,) per unit of the model's units [m/s, m/s, rad, rad] (rho_c times the position unit's factor).
+
+    ``theta`` (5,) the true :data:`PARAMETERS`. Fitted: the drift, and with ``fit_accel_bias`` the accelerometer
+    bias on all three axes as :func:`calib.drift.psobe.linear_lsq` does -- the horizontal components
+    (nabla_E, nabla_N) and the vertical one, whose column (:func:`vertical_bias_sensitivity`) is the tilt the
+    truth produces (``fit_vertical_bias`` False: the horizontal ones only, the parameters the Cramér–Rao bound
+    carries). Without ``fit_accel_bias`` the drift alone is fitted: the accelerometer bias in the data then
+    shifts the minimiser, which ``bias`` gives (the noise-free fit's drift minus the truth).
+
+    The fit is linear in the data, so its covariance is the sandwich P W Sigma W P^T with P the pseudo-inverse of
+    W M (M the fitted columns, W the weights), Sigma = K K^T of :func:`noise_factor`. For the columns of the
+    Cramér–Rao bound it is at least that bound, equal only when the weights whiten the noise: J weights every
+    instant alike while the navigation errors are integrals of the noise, strongly correlated in time. The
+    vertical bias, which the bound does not carry (the data hardly determine it), takes part of that correlated
+    noise with it and so lowers the drift's spread over long windows.
+    """
+    t = observation_times(window_h, dt_out)
+    J = sensitivity_matrix(t, lat, C_bn, h, condition)
+    cols = [J[:, :3]]
+    names = PARAMETERS[:3]
+    if fit_accel_bias:
+        cols.append(J[:, 3:5])
+        names = PARAMETERS
+        if fit_vertical_bias:
+            cols.append(vertical_bias_sensitivity(t, lat, C_bn, theta, h, condition)[:, None])
+            names = PARAMETERS + ("nabla_U",)
+    w = np.tile(np.asarray(weights, float), t.size)
+    M = np.hstack(cols) * w[:, None]
+    s = np.linalg.norm(M, axis=0)
+    s[s == 0] = 1.0  # a column the initial condition cancels (the gyrocompassed east drift) stays zero
+    P = np.linalg.pinv(M / s) / s[:, None]  # minimum-norm least squares, columns scaled to unit norm
+    G = P[:3] @ (noise_factor(t, lat, h, q_gyro, q_accel, meas_sigma) * w[:, None])
+    sigma = np.sqrt(np.sum(G * G, axis=1))
+    bias = P[:3] @ (w * (J @ np.asarray(theta, float))) - np.asarray(theta, float)[:3]
+    return CostLsqLimit(sigma, bias, names)
+
+
+def cost_offset(window_h, dt_out, lat, C_bn, theta, weights, h=0.0, condition="true_attitude") -> np.ndarray:
+    """(3,) the offset [rad/s] from the truth of the drift that minimises He 2019's cost J (eq. 18) itself -- the
+    weighted sum of the absolute errors, sum_k sum_c w_c |e_c(t_k)| -- on the noise-free data of ``theta``
+    (:data:`PARAMETERS`), fitting the drift alone as PSOBE does: the horizontal accelerometer bias in the data,
+    which the drift-only model cannot represent, moves J's minimum. ``weights`` as :func:`cost_lsq_limit`.
+
+    A linear programme (minimise sum(u + v) with M c + u - v = y, u, v >= 0), solved exactly by HiGHS.
+    """
+    t = observation_times(window_h, dt_out)
+    J = sensitivity_matrix(t, lat, C_bn, h, condition)
+    w = np.tile(np.asarray(weights, float), t.size)
+    M = J[:, :3] * w[:, None]
+    s = np.linalg.norm(M, axis=0)
+    s[s == 0] = 1.0
+    y = w * (J @ np.asarray(theta, float))
+    n = y.size
+    A = scipy.sparse.hstack([scipy.sparse.csr_matrix(M / s), scipy.sparse.eye(n), -scipy.sparse.eye(n)])
+    res = scipy.optimize.linprog(np.r_[np.zeros(3), np.ones(2 * n)], A_eq=A, b_eq=y,
+                                 bounds=[(None, None)] * 3 + [(0, None)] * (2 * n), method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"the minimum of J on the noise-free model: {res.message}")
+    return res.x[:3] / s - np.asarray(theta, float)[:3]

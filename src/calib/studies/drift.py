@@ -80,9 +80,52 @@ def crb_pair(session: dict, geom: dict, condition: str, accel_bias_known=(False,
                                   geom["h0"], q_g, q_a, condition, accel_bias_known=tuple(accel_bias_known))
 
 
+def cost_limits(session: dict, geom: dict, dcfg: dict, crb, crb_known) -> dict:
+    """Per estimator of the noise-seed study, what minimising He 2019's J does by itself, from the linear model
+    alone (:mod:`calib.drift.bound`, no estimator run), in units of the estimator's own bound: the least squares
+    of J's weighting (every output instant alike) over the columns :func:`calib.drift.psobe.linear_lsq` fits,
+    its spread (``lsq_limit_over_crb``) and offset; J's own minimum over the drift alone, PSOBE's model: its
+    offset from the truth, which the accelerometer bias it does not model causes (``cost_offset_z``, in the
+    bound with the biases as nuisance, like ``mean_z``). The Kalman filter does not minimise J: NaN."""
+    dt_out = geom["dt_out"]
+    n_out = geom["n_steps"] // max(1, int(round(dt_out / geom["dt_nav"])))
+    window_h = n_out * dt_out / 3600.0
+    C = np.asarray(geom["C_bn"], float)
+    lat, h = geom["lat0"], geom["h0"]
+    q_g, q_a = crb_bound.noise_psd(session, geom["sample_rate_hz"])
+    kl, kn = drift.position_scale(dcfg["position_unit"], lat, h)
+    w = np.asarray(dcfg["weights"], float) * np.array([1.0, 1.0, kl, kn])
+    theta = np.r_[np.asarray(session["gyro_drift_deg_h"], float) * DEG_PER_H,
+                  (C @ np.asarray(session["accel_bias_m_s2"], float))[:2]]
+    cond = dcfg["initial_condition"]
+    lsq = crb_bound.cost_lsq_limit(window_h, dt_out, lat, C, theta, w, h, q_g, q_a, cond)
+    off = crb_bound.cost_offset(window_h, dt_out, lat, C, theta, w, h, cond) / DEG_PER_H
+    nan = np.full(3, np.nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        per = lambda v: np.where(np.isfinite(crb), v / crb, np.nan)  # noqa: E731 -- none where the bound is inf
+        return {"kalman": (nan, nan), "lls_with_accel_bias": (per(lsq.sigma_deg_h()), per(lsq.bias_deg_h())),
+                "pso": (nan, per(off))}
+
+
+#: why each estimator's spread and offset are what they are, beside the computed numbers (no commas: a CSV field)
+NOISE_SEED_REASONS = {
+    "kalman": "the filter of the bound's own model",
+    "lls_with_accel_bias": "least squares of J: every output instant weighed alike while the errors are correlated "
+                           "in time; spread limit lsq_limit_over_crb x the bound (the vertical accelerometer bias it "
+                           "also fits takes part of the noise)",
+    "pso": "minimises J of the drift alone: the accelerometer bias it does not model moves J's minimum "
+           "cost_offset_z bounds from the truth",
+}
+
+
 def _finite(v):
     """JSON-safe float: None where the data do not determine the quantity (inf or nan)."""
     return float(v) if np.isfinite(v) else None
+
+
+def _csv_num(v) -> str:
+    """A number for a CSV field: empty where it does not apply (nan)."""
+    return f"{round(float(v), 3) + 0.0:.3f}" if np.isfinite(v) else ""   # + 0.0: no "-0.000"
 
 
 def noise_psd(session: dict):
@@ -498,7 +541,9 @@ def noise_seed_products(blocks: list, out_nc, out_csv, fig, metrics_path, sessio
                     attrs={"initial_condition": cond, "window_h": dcfg["window_h"]})
     write_netcdf(ds, out_nc, prov)
     rows = ["estimator,axis,mean_z,std_z,within_2_bounds,n_seeds,band99_low,band99_high,consistent,crb_deg_h,"
-            "crb_accel_bias_known_deg_h,kalman_sigma_deg_h,std_deg_h,efficiency"]
+            "crb_accel_bias_known_deg_h,kalman_sigma_deg_h,std_deg_h,efficiency,lsq_limit_over_crb,cost_offset_z,"
+            "reason"]
+    limits = cost_limits(session, geoms[0], dcfg, crb, crb_known)
     metrics = {"n_seeds": n_seeds, "band99": [lo, hi], "crb_deg_h": {a: _finite(v) for a, v in zip(AXES, crb)},
                "crb_accel_bias_known_deg_h": {a: _finite(v) for a, v in zip(AXES, crb_known)},
                "kalman_sigma_deg_h": dict(zip(AXES, kal_sigma.tolist()))}
@@ -507,10 +552,13 @@ def noise_seed_products(blocks: list, out_nc, out_csv, fig, metrics_path, sessio
             within = int(np.sum(np.abs(z[i, :, j]) <= 2.0))
             ok = lo <= within <= hi and 0.85 <= z[i, :, j].std(ddof=1) <= 1.15
             rows.append(f"{m},{a},{z[i, :, j].mean():.3f},{z[i, :, j].std(ddof=1):.3f},{within},{n_seeds},{lo},{hi},{ok},"
-                        f"{crb[j]:.6g},{crb_known[j]:.6g},{kal_sigma[j]:.6g},{spread[i, j]:.6g},{eff[i, j]:.3f}")
+                        f"{crb[j]:.6g},{crb_known[j]:.6g},{kal_sigma[j]:.6g},{spread[i, j]:.6g},{eff[i, j]:.3f},"
+                        f"{_csv_num(limits[m][0][j])},{_csv_num(limits[m][1][j])},{NOISE_SEED_REASONS[m]}")
             metrics[f"{m}.{a}"] = {"mean_z": _finite(z[i, :, j].mean()), "std_z": _finite(z[i, :, j].std(ddof=1)),
                                    "within_2_bounds": within, "std_deg_h": float(spread[i, j]),
-                                   "efficiency": _finite(eff[i, j])}
+                                   "efficiency": _finite(eff[i, j]),
+                                   "lsq_limit_over_crb": _finite(limits[m][0][j]),
+                                   "cost_offset_z": _finite(limits[m][1][j]), "reason": NOISE_SEED_REASONS[m]}
     write_text(out_csv, "\n".join(rows) + "\n")
     write_text(metrics_path, json.dumps(metrics, indent=2))
     log("\n".join(rows))
