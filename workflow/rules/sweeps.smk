@@ -11,7 +11,7 @@ from calib.studies import sweep_spec as _sweeps
 
 SWEEPS = _sweeps.load_all(
     config.get("sweeps", []),
-    {k: v for k, v in config.items() if k != "sweeps"},
+    {k: v for k, v in config.items() if k not in ("sweeps", "scatter")},   # scatter: jobs, not results
     os.path.join(workflow.current_basedir, "..", "schemas", "sweep.schema.yaml"),
     os.path.join(workflow.current_basedir, "..", "..", "src", "calib", "resources", "config.schema.yaml"),
 )
