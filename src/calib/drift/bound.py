@@ -414,3 +414,33 @@ def cost_offset(window_h, dt_out, lat, C_bn, theta, weights, h=0.0, condition="t
     if res.status != 0:
         raise RuntimeError(f"the minimum of J on the noise-free model: {res.message}")
     return res.x[:3] / s - np.asarray(theta, float)[:3]
+
+
+def cost_minimum_spread(window_h, dt_out, lat, C_bn, theta, weights, rng, n_draws=400, h=0.0, q_gyro=0.0,
+                        q_accel=0.0, condition="true_attitude", meas_sigma=None):
+    """(sigma (3,), offset (3,)) [rad/s]: the spread over noise realisations of the drift that minimises He 2019's
+    J itself (the weighted sum of absolute errors, :func:`cost_offset`) over the drift alone, and its mean offset
+    from the truth, by Monte Carlo of the linear model: ``n_draws`` realisations y = J theta + K w (``rng`` a
+    :func:`calib.core.seeds.stream`), each minimised exactly.
+
+    J's minimum has no closed form (it is a median, not a mean); each draw is the dual linear programme of
+    least absolute deviations (maximise y^T d with M^T d = 0, -1 <= d <= 1, HiGHS), whose equality multipliers
+    are the minimiser. The spread's sampling error is about 1 / sqrt(2 n_draws) relative (3.5 % for 400).
+    """
+    t = observation_times(window_h, dt_out)
+    J = sensitivity_matrix(t, lat, C_bn, h, condition)
+    K = noise_factor(t, lat, h, q_gyro, q_accel, meas_sigma)
+    w = np.tile(np.asarray(weights, float), t.size)
+    M = J[:, :3] * w[:, None]
+    s = np.linalg.norm(M, axis=0)
+    s[s == 0] = 1.0
+    Y = w[:, None] * ((J @ np.asarray(theta, float))[:, None] + K @ rng.standard_normal((K.shape[1], n_draws)))
+    est = np.empty((n_draws, 3))
+    for r in range(n_draws):
+        res = scipy.optimize.linprog(-Y[:, r], A_eq=(M / s).T, b_eq=np.zeros(3), bounds=(-1.0, 1.0),
+                                     method="highs")
+        if res.status != 0:
+            raise RuntimeError(f"the minimum of J on draw {r} of the linear model: {res.message}")
+        est[r] = -res.eqlin.marginals / s
+    est -= np.asarray(theta, float)[:3]
+    return est.std(0, ddof=1), est.mean(0)

@@ -80,13 +80,16 @@ def crb_pair(session: dict, geom: dict, condition: str, accel_bias_known=(False,
                                   geom["h0"], q_g, q_a, condition, accel_bias_known=tuple(accel_bias_known))
 
 
-def cost_limits(session: dict, geom: dict, dcfg: dict, crb, crb_known) -> dict:
+def cost_limits(session: dict, geom: dict, dcfg: dict, crb, crb_known, seed0: int) -> dict:
     """Per estimator of the noise-seed study, what minimising He 2019's J does by itself, from the linear model
-    alone (:mod:`calib.drift.bound`, no estimator run), in units of the estimator's own bound: the least squares
-    of J's weighting (every output instant alike) over the columns :func:`calib.drift.psobe.linear_lsq` fits,
-    its spread (``lsq_limit_over_crb``) and offset; J's own minimum over the drift alone, PSOBE's model: its
-    offset from the truth, which the accelerometer bias it does not model causes (``cost_offset_z``, in the
-    bound with the biases as nuisance, like ``mean_z``). The Kalman filter does not minimise J: NaN."""
+    alone (:mod:`calib.drift.bound`, no estimator run), in units of the estimator's own bound: (spread, offset,
+    spread of J's minimum). The least squares of J's weighting (every output instant alike) over the columns
+    :func:`calib.drift.psobe.linear_lsq` fits: its spread (``lsq_limit_over_crb``, a closed form) and offset.
+    J's own minimum over the drift alone, PSOBE's criterion: its offset from the truth on the noise-free data,
+    which the accelerometer bias PSOBE does not model causes (``cost_offset_z``, in the bound with the biases as
+    nuisance, like ``mean_z``), and its spread over the noise (``cost_min_spread_over_crb``, over the bound with
+    the biases known like PSOBE's efficiency; 400 draws of the model, stream (``cost_minimum_draws``) of
+    ``seed0``). The Kalman filter does not minimise J: NaN."""
     dt_out = geom["dt_out"]
     n_out = geom["n_steps"] // max(1, int(round(dt_out / geom["dt_nav"])))
     window_h = n_out * dt_out / 3600.0
@@ -100,11 +103,15 @@ def cost_limits(session: dict, geom: dict, dcfg: dict, crb, crb_known) -> dict:
     cond = dcfg["initial_condition"]
     lsq = crb_bound.cost_lsq_limit(window_h, dt_out, lat, C, theta, w, h, q_g, q_a, cond)
     off = crb_bound.cost_offset(window_h, dt_out, lat, C, theta, w, h, cond) / DEG_PER_H
+    spread, _ = crb_bound.cost_minimum_spread(window_h, dt_out, lat, C, theta, w,
+                                              seeds.stream(seed0, "cost_minimum_draws"), 400, h, q_g, q_a, cond)
     nan = np.full(3, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
-        per = lambda v: np.where(np.isfinite(crb), v / crb, np.nan)  # noqa: E731 -- none where the bound is inf
-        return {"kalman": (nan, nan), "lls_with_accel_bias": (per(lsq.sigma_deg_h()), per(lsq.bias_deg_h())),
-                "pso": (nan, per(off))}
+        def per(v, b=crb):  # none where the bound is inf
+            return np.where(np.isfinite(b), v / b, np.nan)
+        return {"kalman": (nan, nan, nan),
+                "lls_with_accel_bias": (per(lsq.sigma_deg_h()), per(lsq.bias_deg_h()), nan),
+                "pso": (nan, per(off), per(spread / DEG_PER_H, crb_known))}
 
 
 #: why each estimator's spread and offset are what they are, beside the computed numbers (no commas: a CSV field)
@@ -113,7 +120,8 @@ NOISE_SEED_REASONS = {
     "lls_with_accel_bias": "least squares of J: every output instant weighed alike while the errors are correlated "
                            "in time; spread limit lsq_limit_over_crb x the bound (the vertical accelerometer bias it "
                            "also fits takes part of the noise)",
-    "pso": "minimises J of the drift alone: the accelerometer bias it does not model moves J's minimum "
+    "pso": "searches the minimum of J (absolute errors) of the drift alone: that minimum spreads "
+           "cost_min_spread_over_crb x the bound and the accelerometer bias PSOBE does not model moves it "
            "cost_offset_z bounds from the truth",
 }
 
@@ -542,8 +550,8 @@ def noise_seed_products(blocks: list, out_nc, out_csv, fig, metrics_path, sessio
     write_netcdf(ds, out_nc, prov)
     rows = ["estimator,axis,mean_z,std_z,within_2_bounds,n_seeds,band99_low,band99_high,consistent,crb_deg_h,"
             "crb_accel_bias_known_deg_h,kalman_sigma_deg_h,std_deg_h,efficiency,lsq_limit_over_crb,cost_offset_z,"
-            "reason"]
-    limits = cost_limits(session, geoms[0], dcfg, crb, crb_known)
+            "cost_min_spread_over_crb,reason"]
+    limits = cost_limits(session, geoms[0], dcfg, crb, crb_known, seed0)
     metrics = {"n_seeds": n_seeds, "band99": [lo, hi], "crb_deg_h": {a: _finite(v) for a, v in zip(AXES, crb)},
                "crb_accel_bias_known_deg_h": {a: _finite(v) for a, v in zip(AXES, crb_known)},
                "kalman_sigma_deg_h": dict(zip(AXES, kal_sigma.tolist()))}
@@ -553,12 +561,15 @@ def noise_seed_products(blocks: list, out_nc, out_csv, fig, metrics_path, sessio
             ok = lo <= within <= hi and 0.85 <= z[i, :, j].std(ddof=1) <= 1.15
             rows.append(f"{m},{a},{z[i, :, j].mean():.3f},{z[i, :, j].std(ddof=1):.3f},{within},{n_seeds},{lo},{hi},{ok},"
                         f"{crb[j]:.6g},{crb_known[j]:.6g},{kal_sigma[j]:.6g},{spread[i, j]:.6g},{eff[i, j]:.3f},"
-                        f"{_csv_num(limits[m][0][j])},{_csv_num(limits[m][1][j])},{NOISE_SEED_REASONS[m]}")
+                        f"{_csv_num(limits[m][0][j])},{_csv_num(limits[m][1][j])},{_csv_num(limits[m][2][j])},"
+                        f"{NOISE_SEED_REASONS[m]}")
             metrics[f"{m}.{a}"] = {"mean_z": _finite(z[i, :, j].mean()), "std_z": _finite(z[i, :, j].std(ddof=1)),
                                    "within_2_bounds": within, "std_deg_h": float(spread[i, j]),
                                    "efficiency": _finite(eff[i, j]),
                                    "lsq_limit_over_crb": _finite(limits[m][0][j]),
-                                   "cost_offset_z": _finite(limits[m][1][j]), "reason": NOISE_SEED_REASONS[m]}
+                                   "cost_offset_z": _finite(limits[m][1][j]),
+                                   "cost_min_spread_over_crb": _finite(limits[m][2][j]),
+                                   "reason": NOISE_SEED_REASONS[m]}
     write_text(out_csv, "\n".join(rows) + "\n")
     write_text(metrics_path, json.dumps(metrics, indent=2))
     log("\n".join(rows))
