@@ -33,6 +33,11 @@ Loan's integral, and the measurement noise), the rows of K are scaled to unit va
 matrix of ``R^-T J`` (a triangular solve). Dense sampling makes Sigma ill conditioned (positions are integrals
 of velocities); its condition number is reported with the bound (about 1.7e11 for 1 h and 7e11 for 3 h at 60 s,
 which leaves the bound accurate to ~1e-5 relative: the tests check it against closed forms to that level).
+
+Beside the bound, what He 2019's own criterion J lets an estimator reach, from the same model: the spread and
+offset of its least-squares minimiser (:func:`cost_lsq_limit`, the sandwich of the columns the fit carries),
+the offset of J's own minimum on the noise-free data (:func:`cost_offset`) and its spread over the noise
+(:func:`cost_minimum_spread`, Monte Carlo of the model: J is a sum of absolute errors, its minimum a median).
 """
 from __future__ import annotations
 
