@@ -121,6 +121,31 @@ def _count(clean, noise, carry, quantize, inc, counts):  # pragma: no cover
 
 
 @numba.njit(cache=True)
+def _count_into(clean, noise, carry, acc, gyr, i0):  # pragma: no cover
+    """The pulse counter of :func:`_count` writing the counts of rows ``i0 ..`` of ``acc`` and ``gyr`` (int32)
+    directly, without the increments: the same operations per sample (``x = clean + noise``, ``r = carry + x``,
+    ``floor``), ``carry`` updated in place. Returns the largest ``|count|`` (as :meth:`CountsEngine.next` checks
+    it against int32 before it keeps a count)."""
+    n = clean.shape[0]
+    big = 0.0
+    for i in range(n):
+        for j in range(6):
+            x = clean[i, j] + noise[i, j]
+            r = carry[j] + x
+            q = math.floor(r)
+            carry[j] = r - q
+            aq = abs(q)
+            if aq > big:
+                big = aq
+            if aq <= INT32_MAX:
+                if j < 3:
+                    acc[i0 + i, j] = np.int32(q)
+                else:
+                    gyr[i0 + i, j - 3] = np.int32(q)
+    return big
+
+
+@numba.njit(cache=True)
 def _noise_and_count(clean, z, sig_w, a, c, K, dt, beta, carry, quantize, inc, counts):  # pragma: no cover
     """Add noise to the clean increments and run the pulse counter (6 channels): :func:`_noise_increments` then
     :func:`_count`, a block of rows at a time (the noise of a block stays in cache; one implementation of each).
@@ -150,6 +175,12 @@ class Chunk:
     accel_increment: np.ndarray  # un-quantised increments int N dt [count] (float64)
     gyro_increment: np.ndarray
     temperature: np.ndarray     # [degC] at the sample mid-times
+
+
+#: the temperatures of the last chunks :meth:`CountsEngine.run` made with given noise (key: sample range, sample
+#: interval, clock offset, warm-up profile), at most :data:`_TEMPERATURES_KEPT` (oldest dropped first)
+_TEMPERATURES: dict = {}
+_TEMPERATURES_KEPT = 32
 
 
 class CountsEngine:
@@ -237,14 +268,7 @@ class CountsEngine:
         an engine of the same noise seed and noise terms, instead of drawing them (the same samples to the bit)."""
         n = int(n)
         i0, dt = self.pos, self.dt
-        if self._clean_given is not None:
-            clean = self._clean_given[i0:i0 + n]
-        elif self.constant_inputs and not (set(self.eff) & TIME_DEPENDENT_EFFECTS):
-            if self._clean_const is None:
-                self._clean_const = self.clean_increments(0, 1)[0]
-            clean = np.broadcast_to(self._clean_const, (n, 6))
-        else:
-            clean = self.clean_increments(i0, n)
+        clean = self._clean_chunk(i0, n)
         inc = np.empty((n, 6))
         quant = bool(self.noise["quantize"])
         counts = np.empty((n, 6), dtype=np.int64) if quant else inc
@@ -262,10 +286,35 @@ class CountsEngine:
             counts = counts.astype(np.int32)
         else:
             counts = inc.copy()
-        tk = np.arange(i0, i0 + n, dtype=np.float64) * dt
-        temp = temperature_profile(tk + 0.5 * dt + self.site.time_offset_s, self.temp)
+        temp = self._chunk_temperature(i0, n)
         self.pos += n
         return Chunk(i0, counts[:, :3], counts[:, 3:], inc[:, :3], inc[:, 3:], temp)
+
+    def _clean_chunk(self, i0: int, n: int) -> np.ndarray:
+        """The noise-free increments of samples ``i0 .. i0 + n - 1`` (n, 6) [count]: given, constant or computed."""
+        if self._clean_given is not None:
+            return self._clean_given[i0:i0 + n]
+        if self.constant_inputs and not (set(self.eff) & TIME_DEPENDENT_EFFECTS):
+            if self._clean_const is None:
+                self._clean_const = self.clean_increments(0, 1)[0]
+            return np.broadcast_to(self._clean_const, (n, 6))
+        return self.clean_increments(i0, n)
+
+    def _chunk_temperature(self, i0: int, n: int, keep: bool = False) -> np.ndarray:
+        """The unit temperature [degC] at the mid-times of samples ``i0 .. i0 + n - 1``. ``keep``: look it up in
+        (and add it to) :data:`_TEMPERATURES` (read only): it depends on the sample times and the warm-up profile
+        only, so the many noise seeds of one session (:meth:`run` with given noise) compute it once."""
+        key = (i0, n, self.dt, self.site.time_offset_s, repr(sorted(self.temp.items())))
+        hit = _TEMPERATURES.get(key) if keep else None
+        if hit is None:
+            tk = np.arange(i0, i0 + n, dtype=np.float64) * self.dt
+            hit = temperature_profile(tk + 0.5 * self.dt + self.site.time_offset_s, self.temp)
+            if keep:
+                if len(_TEMPERATURES) >= _TEMPERATURES_KEPT:
+                    _TEMPERATURES.pop(next(iter(_TEMPERATURES)))
+                hit.flags.writeable = False
+                _TEMPERATURES[key] = hit
+        return hit
 
     def run(self, n: int, chunk: int = NOISE_BLOCK, noise: np.ndarray | None = None,
             temperature_dtype=np.float64) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -276,6 +325,19 @@ class CountsEngine:
         acc = np.empty((n, 3), dtype=dtype)
         gyr = np.empty((n, 3), dtype=dtype)
         temp = np.empty(n, dtype=temperature_dtype)
+        if noise is not None and self.noise["quantize"]:
+            # given noise (the proof's seeds): the counter writes the int32 counts in place, without the chunk's
+            # increments and int64 counts that next() keeps for its Chunk (the same counts, the same checks)
+            for i0 in range(0, n, chunk):
+                k = min(chunk, n - i0)
+                clean = np.ascontiguousarray(self._clean_chunk(self.pos, k), dtype=np.float64)
+                big = _count_into(clean, noise[i0:i0 + k], self.carry, acc, gyr, i0)
+                if big > INT32_MAX:
+                    raise SimConfigError(f"sample_rate_hz: {int(big)} counts in one sample overflow int32; "
+                                         "raise the sample rate or lower the rotation rates")
+                temp[i0:i0 + k] = self._chunk_temperature(self.pos, k, keep=True)
+                self.pos += k
+            return acc, gyr, temp
         for i0 in range(0, n, chunk):
             k = min(chunk, n - i0)
             ch = self.next(k, None if noise is None else noise[i0:i0 + k])
