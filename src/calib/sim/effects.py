@@ -135,14 +135,25 @@ def _accel_cross(ctx: SensorContext, p):
     return f * rows_times(f, c), None
 
 
+def _cross_columns(a0, a1, a2, b0, b1, b2):
+    """``a x b`` by components (columns or numbers): the products and differences of ``np.cross``, in its order,
+    without its broadcasting and temporaries."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
 def _accel_lever(ctx: SensorContext, p):
     r = np.asarray(p["lever_arms_m"], dtype=float)  # row i = position of proof mass i [m], body frame
-    w, dw = ctx.w_nb, ctx.dw_nb
+    w, dw = np.asarray(ctx.w_nb, dtype=float), np.asarray(ctx.dw_nb, dtype=float)
+    wc, dwc = (w[:, 0], w[:, 1], w[:, 2]), (dw[:, 0], dw[:, 1], dw[:, 2])
     out = np.empty_like(ctx.y_a)
     for i in range(3):
-        ri = np.broadcast_to(r[i], w.shape)
-        a = np.cross(w, np.cross(w, ri)) + np.cross(dw, ri)  # m/s^2, body frame
-        out[:, i] = rows_times(a, ctx.E_a[i:i + 1])[:, 0] / STANDARD_GRAVITY
+        ri = tuple(r[i])
+        c = _cross_columns(*wc, *ri)
+        d = _cross_columns(*wc, *c)
+        e = _cross_columns(*dwc, *ri)
+        m = np.asarray(ctx.E_a[i], dtype=float)
+        # a = w x (w x r) + dw x r [m/s^2, body frame]; its component along E_a[i] as rows_times forms it
+        out[:, i] = ((d[0] + e[0]) * m[0] + (d[1] + e[1]) * m[1] + (d[2] + e[2]) * m[2]) / STANDARD_GRAVITY
     return out, None
 
 
@@ -163,12 +174,35 @@ def _gyro_nonlin(ctx: SensorContext, p):
 
 # ---- both triads ----------------------------------------------------------------------------------
 
+def _positive_zeros(x) -> bool:
+    """Whether every entry of ``x`` is +0.0."""
+    return not np.any(x) and not np.any(np.signbit(x))
+
+
+def _drift_triad(t, A, tau, S):
+    """``A exp(-t / tau) + S t / 3600`` (n, 3) for times ``t`` (n,). A part whose coefficients are all +0.0 is a
+    zero of known sign where ``t`` is finite (and ``exp(-t / tau)`` too): it is then not evaluated, and the sum
+    is the other part plus +0.0, the same numbers to the bit (the library evaluates one part of one triad at a
+    time)."""
+    A, S = np.asarray(A), np.asarray(S)
+    tt = t[:, None]
+    zA, zS = _positive_zeros(A), _positive_zeros(S)
+    if zA or zS:
+        lo, hi = float(np.min(t)), float(np.max(t))
+        # A exp(-t/tau) = +0 for A = +0: exp finite; S t = +0 for S = +0: t > 0 and finite (NaN fails each test)
+        safe = math.isfinite(hi) and float(tau) > 0.0 and lo > -700.0 * float(tau)
+        if safe and zA and zS and lo > 0.0:
+            return np.zeros((t.shape[0], 3))
+        if safe and zA:
+            return S * tt / 3600.0 + 0.0
+        if safe and zS and lo > 0.0:
+            return A * np.exp(-tt / tau) + 0.0
+    return A * np.exp(-tt / tau) + S * tt / 3600.0
+
+
 def _bias_drift(ctx: SensorContext, p):
-    t = ctx.t[:, None]
-    da = (np.asarray(p["accel_warmup_ug"]) * np.exp(-t / p["accel_tau_s"])
-          + np.asarray(p["accel_trend_ug_per_h"]) * t / 3600.0) * UG
-    dg = (np.asarray(p["gyro_warmup_deg_h"]) * np.exp(-t / p["gyro_tau_s"])
-          + np.asarray(p["gyro_trend_deg_h_per_h"]) * t / 3600.0)
+    da = _drift_triad(ctx.t, p["accel_warmup_ug"], p["accel_tau_s"], p["accel_trend_ug_per_h"]) * UG
+    dg = _drift_triad(ctx.t, p["gyro_warmup_deg_h"], p["gyro_tau_s"], p["gyro_trend_deg_h_per_h"])
     return da, dg
 
 
