@@ -73,7 +73,10 @@ class Beside:
         return False
 
 
-def setup(slurm=False):
+def setup(extras=("workflow", "test")):
+    """The virtual environment with calib and the ``extras`` a verb needs (the study: the workflow; the tests: the
+    test tools too). What is installed is kept in ``.calib-installed`` (pyproject.toml, then the extras): a changed
+    pyproject.toml installs again, a further extra installs beside those already there."""
     if sys.version_info < (3, 11):
         sys.exit(f"calib needs Python >= 3.11, this is {sys.version.split()[0]}")
     if not PY.exists():
@@ -81,14 +84,19 @@ def setup(slurm=False):
         venv.EnvBuilder(with_pip=True).create(VENV)
     stamp = VENV / ".calib-installed"
     spec = (ROOT / "pyproject.toml").read_bytes()
-    if not stamp.exists() or stamp.read_bytes() != spec:
-        sh(PY, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
-        sh(PY, "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[workflow,test]")
-        stamp.write_bytes(spec)
-    slurm_stamp = VENV / ".calib-installed-slurm"
-    if slurm and (not slurm_stamp.exists() or slurm_stamp.read_bytes() != spec):
-        sh(PY, "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[workflow,test,slurm]")
-        slurm_stamp.write_bytes(spec)
+    have = set()
+    if stamp.exists():
+        text = stamp.read_bytes()
+        head, _, tail = text.rpartition(b"\n# extras: ")
+        if head == spec:
+            have = set(tail.decode().split(",")) - {""}
+    need = set(extras)
+    if not need <= have:
+        if not have:
+            sh(PY, "-m", "pip", "install", "--quiet", "--upgrade", "pip")
+        want = sorted(need | have)
+        sh(PY, "-m", "pip", "install", "--quiet", "-e", f"{ROOT}[{','.join(want)}]")
+        stamp.write_bytes(spec + b"\n# extras: " + ",".join(want).encode())
     env = dict(os.environ)
     env["PATH"] = f"{BIN}{os.pathsep}{env.get('PATH', '')}"
     return env
@@ -119,7 +127,7 @@ def main(argv):
     rest = argv[1:]
     if verb == "study":
         lazy_bytecode()
-        env = setup()
+        env = setup(("workflow",))   # the study needs no test tools
         sh(BIN / "snakemake", "--profile", "workflow/profiles/default", *rest, env=env)
     elif verb == "test":
         lazy_bytecode()
@@ -148,7 +156,7 @@ def main(argv):
         with tempfile.TemporaryDirectory(prefix="calib-site-") as site:
             sh(BIN / "mkdocs", "build", "--strict", "--quiet", "--site-dir", site, env=env)
     elif verb == "setup":
-        setup(slurm="--slurm" in rest)
+        setup(("workflow", "test") + (("slurm",) if "--slurm" in rest else ()))
     else:
         print(__doc__)
         sys.exit(0 if verb in ("help", "-h", "--help") else 2)
