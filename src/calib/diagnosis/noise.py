@@ -572,7 +572,10 @@ def with_measured_slow(noise: NoiseFit, geom: Geometry, path) -> NoiseFit:
     import copy
 
     models = record_noise_models(path)
-    out = copy.deepcopy(noise)
+    # the factorisations of the noise shape (shape_cache) hold for the copy too (it changes the slow part only) and
+    # are never changed in place: the copy gets its own dict of the same entries, not copies of every array
+    out = copy.deepcopy(dataclasses.replace(noise, shape_cache={}))
+    out.shape_cache = dict(noise.shape_cache)
     for s in SENSORS:
         m = models[s]
         if m.unit != geom.units_out[s]:
