@@ -149,10 +149,9 @@ class FastSession:
         return ds.drop_vars(self.drop_vars) if self.drop_vars else ds
 
     def truth_for(self, seed: int) -> dict:
-        """The truth sidecar content of noise seed ``seed``."""
-        t = copy.deepcopy(self.truth)
-        t["seed"] = int(seed)
-        return t
+        """The truth sidecar content of noise seed ``seed`` (its nested entries are the session's own: read only;
+        :func:`calib.studies.diagnosis_score.score` only reads them)."""
+        return {**self.truth, "seed": int(seed)}
 
 
 #: bytes of noise increments a process keeps for reuse (:func:`shared_noise`); 1.5 GiB hold the 120 seeds of the default
