@@ -1,5 +1,5 @@
-"""The long studies' jobs under each `scatter` mode (workflow/rules/common.smk), on the plan of the default
-configuration (``snakemake --dry-run``): `unit` gives a job per proof session, per real recording and per seed
+"""The long studies' jobs under each `scatter` mode (workflow/rules/common.smk), on the plan of the default and
+the .test configuration (``snakemake --dry-run``): `unit` gives a job per proof session, per real recording and per seed
 block; an integer n, or `auto` on one machine (twice its cores), at most n jobs a study. In every mode each session,
 recording and seed is run by exactly one job, and the gathering job reads every job's part. That the products do
 not depend on the mode is shown where both run: CI's SLURM run (`unit`) against its local one (`auto`, 4 jobs a
@@ -18,6 +18,7 @@ from calib.studies import proof_sessions
 ROOT = Path(__file__).resolve().parents[2]
 JOB_HEAD = re.compile(r"^(?:local)?rule (\S+):\s*$")
 FIELD = re.compile(r"^\s+(input|output|wildcards|threads): (.*)$")
+CONFIGS = {"default": ROOT / "config" / "config.yaml", "test": ROOT / ".test" / "config.yaml"}
 #: the studies' job rules, the gathering rules and the wildcard naming a job
 STUDIES = {"proof": ("diagnosis_proof_session", "diagnosis_proof", "proof_job"),
            "real": ("diagnosis_real_proof_recording", "diagnosis_real_proof", "real_proof_job"),
@@ -26,9 +27,9 @@ STUDIES = {"proof": ("diagnosis_proof_session", "diagnosis_proof", "proof_job"),
 RECORDINGS = sorted(p.stem for p in (ROOT / "config" / "import").glob("*.yaml"))
 
 
-def _plan(tmp_path, *args) -> tuple[list[dict], dict]:
-    """The jobs of a dry run of the whole default study (results under tmp_path) with ``args``."""
-    cfg = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+def _plan(tmp_path, *args, config="default") -> tuple[list[dict], dict]:
+    """The jobs of a dry run of the whole study of ``config`` (results under tmp_path) with ``args``."""
+    cfg = yaml.safe_load(CONFIGS[config].read_text())
     cfg["results"] = str(tmp_path / "results")
     cfg["sweeps"] = [str(ROOT / s) for s in cfg.get("sweeps", [])]
     cfgfile = tmp_path / "config.yaml"
@@ -42,7 +43,7 @@ def _plan(tmp_path, *args) -> tuple[list[dict], dict]:
     for line in r.stdout.splitlines():
         m = JOB_HEAD.match(line)
         if m:
-            cur = {"rule": m.group(1)}
+            cur = {"rule": m.group(1), "threads": "1"}
             jobs.append(cur)
         elif cur is not None and (f := FIELD.match(line)):
             cur[f.group(1)] = f.group(2).strip()
@@ -68,14 +69,18 @@ def _units_once(jobs, cfg):
         assert spans[0][0] == 0 and spans[-1][1] == n and all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
 
 
-def test_unit_mode_runs_a_job_per_session_recording_and_seed_block(tmp_path):
-    jobs, cfg = _plan(tmp_path, "--cores", "2", "--config", "scatter=unit")
+@pytest.mark.parametrize("config", list(CONFIGS))
+def test_unit_mode_runs_a_job_per_session_recording_and_seed_block(tmp_path, config):
+    jobs, cfg = _plan(tmp_path, "--cores", "2", "--config", "scatter=unit", config=config)
     _units_once(jobs, cfg)
     proof = _study(jobs, "proof")
     assert sorted(j["wildcards"] for j in proof) == sorted(f"proof_job={s}" for s in proof_sessions.session_names(
         cfg["diagnosis"]["proof"].get("sessions")))
-    assert sorted(j["wildcards"] for j in _study(jobs, "real")) == [f"real_proof_job={r}" for r in RECORDINGS]
-    assert all(b - a <= 15 for a, b in _spans(_study(jobs, "noise")))
+    chosen = cfg["diagnosis"].get("real_proof", {}).get("recordings") or RECORDINGS
+    assert sorted(j["wildcards"] for j in _study(jobs, "real")) == [f"real_proof_job={r}" for r in sorted(chosen)]
+    noise = _study(jobs, "noise")
+    assert all(b - a <= 15 for a, b in _spans(noise)) and len(noise) >= 2   # no job carries the whole study
+    assert all(j["threads"] == "1" for j in noise)
     assert all(b - a <= 100 for a, b in _spans(_study(jobs, "z")))
 
 
