@@ -22,10 +22,12 @@ LONGEST_FIRST = [   # measured 2026-11-27 (pytest --junitxml, summed per file)
     "tests/fieldcal/test_default_detection.py",
     "tests/diagnosis/test_unmodelled.py",
     "tests/sim/test_fisher.py",
+    "tests/drift/test_lsq_sandwich.py",
     "tests/cli/test_mislabelled_shared.py",
     "tests/cli/test_refusals.py",
     "tests/studies/test_calibration_z.py",
     "tests/studies/test_workflow_support.py",
+    "tests/fieldcal/test_offset_bound_modes.py",
 ]
 
 
