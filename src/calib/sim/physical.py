@@ -60,7 +60,8 @@ def signal_key(sim, clean: np.ndarray) -> tuple:
     """What a result computed from the noise-free signal ``clean`` of ``sim``'s unit depends on: the signal's
     content (a digest), the sample rate and the unit's base models (K, E, b of both triads). For the one-entry
     caches of the many computations on one signal (here, and the Fisher bound's nuisance spectra)."""
-    return (hashlib.blake2b(np.ascontiguousarray(clean).tobytes(), digest_size=16).digest(),
+    # SHA-256 of the array's own buffer (no bytes copy): twice blake2b's speed on CPUs with SHA instructions
+    return (hashlib.sha256(memoryview(np.ascontiguousarray(clean))).digest()[:16],
             float(sim.sample_rate_hz)) + tuple(float(v) for m in (sim.accel, sim.gyro)
                                                for v in np.concatenate([np.ravel(m.K), np.ravel(m.E), np.ravel(m.b)]))
 
