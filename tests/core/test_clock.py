@@ -4,7 +4,7 @@ Stamps are made here from a model of the logger (true sample times, latency, sta
 never with the code under test."""
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from calib.core.clock import LEVEL_WINDOW, MAX_DROP_RUN, ClockError, fit_clock
@@ -175,6 +175,9 @@ def logger(n, fs, rng, jitter, stalls, drops, gaps):
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2**32 - 1), jitter=st.floats(0.0, 0.3), n_stalls=st.integers(0, 12),
        n_drops=st.integers(0, 12), n_gaps=st.integers(0, 2), whole_gap=st.booleans())
+# a cluster of bursts and drops (samples 572-648) whose count flipped between two readings for every pass: the hole
+# of 8.5 periods at sample 2996, far from it, was never marked
+@example(seed=3835, jitter=0.0, n_stalls=11, n_drops=4, n_gaps=2, whole_gap=False)
 def test_property_no_false_gap_every_gap_found(seed, jitter, n_stalls, n_drops, n_gaps, whole_gap):
     """Over random jitter (up to +-0.3 periods), bursts (up to MAX_DROP_RUN samples held and sent at once), lost
     samples (up to MAX_DROP_RUN in a row) and holes (a step of a whole number of periods above MAX_DROP_RUN + 1, or of

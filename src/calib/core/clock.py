@@ -314,7 +314,7 @@ def _recount(jump, u, ratio, k, gap_mask, h, back):
     return changed
 
 
-def _classify(u, ratio, k, gap_mask):
+def _classify(u, ratio, k, gap_mask, recount=True):
     """One pass over the places where the residual ``u`` changes its level (:func:`_levels`).
 
     First the counts (:func:`_recount`), with the long level window, then with the short one (a burst or a
@@ -322,14 +322,15 @@ def _classify(u, ratio, k, gap_mask):
     than :data:`MAX_DROP_RUN` samples that the level keeps; then, one a pass, a counted drop whose step still
     leaves the level changed by more than :data:`WHOLE_TOL` over both windows (a whole number of periods and a
     fraction), or a drop of the level by :data:`SHIFT_MIN` or more where no drop is counted to take (the stamps
-    jumping back). Returns True if anything changed."""
+    jumping back). ``recount`` False: the counts are kept as they are (they cycle, :func:`fit_clock`) and only
+    gaps are marked. Returns True if anything changed."""
     runs = _runs(gap_mask, len(u))
     back = []
     jumps = {}
     for h in (LEVEL_WINDOW, SHORT_WINDOW):
         before, after = _levels(u, runs, h)
         jumps[h] = after - before
-        if _recount(jumps[h], u, ratio, k, gap_mask, h, back):
+        if recount and _recount(jumps[h], u, ratio, k, gap_mask, h, back):
             return True
     jump, jshort = jumps[LEVEL_WINDOW], jumps[SHORT_WINDOW]
     # a hole that the level keeps (no burst pays it back): a gap, split before the gaps below, so that the level
@@ -390,6 +391,10 @@ def fit_clock(t, nominal_rate_hz: float | None = None) -> ClockFit:
         normal = ratio[ratio < 1.5]
         spread = 1.4826 * float(np.median(np.abs(normal - np.median(normal)))) if normal.size else 0.0
         k = np.where(ratio > 1.5 + 2.0 * spread, np.maximum(1, np.rint(np.minimum(ratio, 1e9))), 1).astype(np.int64)
+        # the counts of a cluster of bursts and drops can flip between two readings pass after pass; a count that
+        # comes back is not resolved by more passes: it is kept, and the gaps are marked (each new gap lets the
+        # counts change again), so that a cycle in one place does not hide a hole elsewhere
+        seen, recount = set(), True
         for _ in range(MAX_PASSES):
             runs = _runs(gap_mask, n)
             k = np.where(gap_mask, 1, k)
@@ -397,8 +402,14 @@ def fit_clock(t, nominal_rate_hz: float | None = None) -> ClockFit:
             period, _, res, _ = _pooled_line(t, idx, runs)
             ratio = d / period
             u = res / period
-            if not _classify(u, ratio, k, gap_mask):
+            state = k.tobytes() + gap_mask.tobytes()
+            recount = recount and state not in seen
+            seen.add(state)
+            n_gaps = int(gap_mask.sum())
+            if not _classify(u, ratio, k, gap_mask, recount):
                 break
+            if gap_mask.sum() > n_gaps:
+                seen, recount = set(), True
         gap_mask |= (k - 1) > MAX_DROP_RUN   # a hole in the record, even where the stamps keep to the line
         k = np.where(gap_mask, np.maximum(1, np.rint(np.minimum(d / period, 1e9))).astype(np.int64), k)
         idx = np.concatenate([[0], np.cumsum(k)]).astype(np.int64)
