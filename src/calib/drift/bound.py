@@ -47,7 +47,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 import scipy.optimize
-import scipy.sparse
 
 from calib.core import earth
 from calib.core.earth import STANDARD_GRAVITY
@@ -355,6 +354,34 @@ class CostLsqLimit:
         return self.bias / earth.DEG_PER_H
 
 
+def _unit_columns(M):
+    """(M / s, s): the columns of ``M`` scaled to unit norm (``s`` their norms); a column the initial condition
+    cancels (the gyrocompassed east drift) stays zero."""
+    s = np.linalg.norm(M, axis=0)
+    s[s == 0] = 1.0
+    return M / s, s
+
+
+def _drift_columns(window_h, dt_out, lat, C_bn, weights, h, condition):
+    """(J, w, Mu, s): the model's columns at the output instants, the channel weights tiled over them, and the
+    weighted drift columns scaled to unit norm (:func:`_unit_columns`)."""
+    t = observation_times(window_h, dt_out)
+    J = sensitivity_matrix(t, lat, C_bn, h, condition)
+    w = np.tile(np.asarray(weights, float), t.size)
+    Mu, s = _unit_columns(J[:, :3] * w[:, None])
+    return J, w, Mu, s
+
+
+def _lad_drift(Mu, s, y, what):
+    """The drift minimising sum |y - Mu c| (c = drift x s), exactly: the dual linear programme of least absolute
+    deviations (maximise y^T d with Mu^T d = 0, -1 <= d <= 1; HiGHS), whose equality multipliers are the
+    minimiser. ``what`` names the data in the error message."""
+    res = scipy.optimize.linprog(-y, A_eq=Mu.T, b_eq=np.zeros(Mu.shape[1]), bounds=(-1.0, 1.0), method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"the minimum of J on {what}: {res.message}")
+    return -res.eqlin.marginals / s
+
+
 def cost_lsq_limit(window_h, dt_out, lat, C_bn, theta, weights, h=0.0, q_gyro=0.0, q_accel=0.0,
                    condition="true_attitude", fit_accel_bias=True, fit_vertical_bias=True,
                    meas_sigma=None) -> CostLsqLimit:
@@ -387,10 +414,8 @@ def cost_lsq_limit(window_h, dt_out, lat, C_bn, theta, weights, h=0.0, q_gyro=0.
             cols.append(vertical_bias_sensitivity(t, lat, C_bn, theta, h, condition)[:, None])
             names = PARAMETERS + ("nabla_U",)
     w = np.tile(np.asarray(weights, float), t.size)
-    M = np.hstack(cols) * w[:, None]
-    s = np.linalg.norm(M, axis=0)
-    s[s == 0] = 1.0  # a column the initial condition cancels (the gyrocompassed east drift) stays zero
-    P = np.linalg.pinv(M / s) / s[:, None]  # minimum-norm least squares, columns scaled to unit norm
+    Mu, s = _unit_columns(np.hstack(cols) * w[:, None])
+    P = np.linalg.pinv(Mu) / s[:, None]  # minimum-norm least squares, columns scaled to unit norm
     G = P[:3] @ (noise_factor(t, lat, h, q_gyro, q_accel, meas_sigma) * w[:, None])
     sigma = np.sqrt(np.sum(G * G, axis=1))
     bias = P[:3] @ (w * (J @ np.asarray(theta, float))) - np.asarray(theta, float)[:3]
@@ -403,22 +428,11 @@ def cost_offset(window_h, dt_out, lat, C_bn, theta, weights, h=0.0, condition="t
     (:data:`PARAMETERS`), fitting the drift alone as PSOBE does: the horizontal accelerometer bias in the data,
     which the drift-only model cannot represent, moves J's minimum. ``weights`` as :func:`cost_lsq_limit`.
 
-    A linear programme (minimise sum(u + v) with M c + u - v = y, u, v >= 0), solved exactly by HiGHS.
+    A linear programme, solved exactly (:func:`_lad_drift`).
     """
-    t = observation_times(window_h, dt_out)
-    J = sensitivity_matrix(t, lat, C_bn, h, condition)
-    w = np.tile(np.asarray(weights, float), t.size)
-    M = J[:, :3] * w[:, None]
-    s = np.linalg.norm(M, axis=0)
-    s[s == 0] = 1.0
-    y = w * (J @ np.asarray(theta, float))
-    n = y.size
-    A = scipy.sparse.hstack([scipy.sparse.csr_matrix(M / s), scipy.sparse.eye(n), -scipy.sparse.eye(n)])
-    res = scipy.optimize.linprog(np.r_[np.zeros(3), np.ones(2 * n)], A_eq=A, b_eq=y,
-                                 bounds=[(None, None)] * 3 + [(0, None)] * (2 * n), method="highs")
-    if res.status != 0:
-        raise RuntimeError(f"the minimum of J on the noise-free model: {res.message}")
-    return res.x[:3] / s - np.asarray(theta, float)[:3]
+    J, w, Mu, s = _drift_columns(window_h, dt_out, lat, C_bn, weights, h, condition)
+    theta = np.asarray(theta, float)
+    return _lad_drift(Mu, s, w * (J @ theta), "the noise-free model") - theta[:3]
 
 
 def cost_minimum_spread(window_h, dt_out, lat, C_bn, theta, weights, rng, n_draws=400, h=0.0, q_gyro=0.0,
@@ -428,24 +442,13 @@ def cost_minimum_spread(window_h, dt_out, lat, C_bn, theta, weights, rng, n_draw
     from the truth, by Monte Carlo of the linear model: ``n_draws`` realisations y = J theta + K w (``rng`` a
     :func:`calib.core.seeds.stream`), each minimised exactly.
 
-    J's minimum has no closed form (it is a median, not a mean); each draw is the dual linear programme of
-    least absolute deviations (maximise y^T d with M^T d = 0, -1 <= d <= 1, HiGHS), whose equality multipliers
-    are the minimiser. The spread's sampling error is about 1 / sqrt(2 n_draws) relative (3.5 % for 400).
+    J's minimum has no closed form (it is a median, not a mean); each draw is minimised exactly
+    (:func:`_lad_drift`). The spread's sampling error is about 1 / sqrt(2 n_draws) relative (3.5 % for 400).
     """
-    t = observation_times(window_h, dt_out)
-    J = sensitivity_matrix(t, lat, C_bn, h, condition)
-    K = noise_factor(t, lat, h, q_gyro, q_accel, meas_sigma)
-    w = np.tile(np.asarray(weights, float), t.size)
-    M = J[:, :3] * w[:, None]
-    s = np.linalg.norm(M, axis=0)
-    s[s == 0] = 1.0
-    Y = w[:, None] * ((J @ np.asarray(theta, float))[:, None] + K @ rng.standard_normal((K.shape[1], n_draws)))
-    est = np.empty((n_draws, 3))
-    for r in range(n_draws):
-        res = scipy.optimize.linprog(-Y[:, r], A_eq=(M / s).T, b_eq=np.zeros(3), bounds=(-1.0, 1.0),
-                                     method="highs")
-        if res.status != 0:
-            raise RuntimeError(f"the minimum of J on draw {r} of the linear model: {res.message}")
-        est[r] = -res.eqlin.marginals / s
-    est -= np.asarray(theta, float)[:3]
+    J, w, Mu, s = _drift_columns(window_h, dt_out, lat, C_bn, weights, h, condition)
+    K = noise_factor(observation_times(window_h, dt_out), lat, h, q_gyro, q_accel, meas_sigma)
+    theta = np.asarray(theta, float)
+    Y = w[:, None] * ((J @ theta)[:, None] + K @ rng.standard_normal((K.shape[1], n_draws)))
+    est = np.array([_lad_drift(Mu, s, Y[:, r], f"draw {r} of the linear model") for r in range(n_draws)])
+    est -= theta[:3]
     return est.std(0, ddof=1), est.mean(0)
