@@ -3,6 +3,8 @@ import glob
 import json
 import os
 
+from snakemake.exceptions import WorkflowError
+
 from calib.core.seeds import session_seed  # light: the Snakefile is parsed by every snakemake process
 
 R = config["results"]
@@ -24,23 +26,22 @@ def _scatter_jobs():
         return None
     try:
         return 2 * int(workflow.cores)
-    except Exception:   # a dry run without --cores: no cores to size the jobs to
+    except WorkflowError:   # a dry run without --cores: no cores to size the jobs to
         return None
 
 
 SCATTER_JOBS = _scatter_jobs()
 
 
-def scatter(units, unit_blocks=None):
-    """The units of a study (names, in order) as its jobs: an ordered {block name: [units]}. ``unit_blocks``: the
-    blocks of the `unit` mode (default: one per unit, named by it). With at most n jobs (SCATTER_JOBS), the units
-    are dealt round-robin over ``min(n, len(blocks))`` jobs named ``j<i>of<k>`` (neighbours, often alike in cost,
-    land in different jobs)."""
-    blocks = unit_blocks if unit_blocks is not None else {u: [u] for u in units}
-    if SCATTER_JOBS is None or SCATTER_JOBS >= len(blocks):
-        return blocks
+def scatter(units):
+    """The units of a study (names, in order) as its jobs: an ordered {job name: [units]}, a job per unit named by
+    it; with at most n jobs (SCATTER_JOBS) fewer than the units, the units dealt round-robin over n jobs named
+    ``j<i>of<n>`` (neighbours, often alike in cost, land in different jobs)."""
+    units = list(units)
     k = SCATTER_JOBS
-    return {f"j{i}of{k}": list(units)[i::k] for i in range(k)}
+    if k is None or k >= len(units):
+        return {u: [u] for u in units}
+    return {f"j{i}of{k}": units[i::k] for i in range(k)}
 
 
 def seed_blocks(n, per_job):
