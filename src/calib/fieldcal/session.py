@@ -244,9 +244,9 @@ def _norm(inp: _Inputs, det_cfg: dict, notes: list, metrics: dict, x0=None):
         if bias_mode == "statics":
             b0 = np.concatenate([gyr_in[a:b] for a, b in iv]).mean(axis=0)
         elif bias_mode in ("initial", "estimate"):
-            b0 = gyr_in[init_span[0]:init_span[1]].mean(axis=0)
+            rest = gyr_in[init_span[0]:init_span[1]]
+            b0 = rest.mean(axis=0)
             if bias_mode == "initial":   # the standard error of a mean of the rest's samples
-                rest = gyr_in[init_span[0]:init_span[1]]
                 off_cov = np.diag(rest.var(axis=0, ddof=1) / len(rest))
         if gset.get("dt", "nominal") == "timestamps":
             if "time" not in ds.coords:
